@@ -1,0 +1,5 @@
+import sys
+
+from srvol.cli import main
+
+sys.exit(main())

@@ -1,0 +1,172 @@
+"""``srvol synth``: write a built-in scene in the format of DESIGN.md section 4.
+
+The paper's protocol: render each view at HR (sr x LR) with the co-located
+point light, supersampled; blur with the Gaussian PSF; decimate to LR. Test
+views also get HR renders, normals, albedo and renders under moved lights
+(with shadows), and the scene gets its GT mesh.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from srvol.data import AtomicFolder, SceneInfo, View, camera_to_json, write_scene_folder
+from srvol.errors import SrvolError
+from srvol.images import atomic_write_text, write_exr
+from srvol.psf import blur_decimate
+from srvol.synth.render import GTRender, render
+from srvol.synth.scenes import get_scene
+from srvol.synth.surfaces import AnalyticSurface, MeshSurface, Surface
+from srvol.types import Camera, PointLight
+
+CAMERA_DISTANCE = 2.6
+LIGHT_INTENSITY = 10.0
+
+
+@dataclass(frozen=True)
+class SynthOptions:
+    """lr: (W, H) of the LR inputs; sr: HR/LR ratio; views: training views;
+    test_views: held-out views; psf_sigma: Gaussian PSF sigma in LR pixels;
+    ss: sub-pixel rays per HR pixel side; relit_views: test views rendered under moved lights;
+    lights_per_view: moved lights per relit view (the k-th relit view starts at light pattern k,
+    so three relit views with one light each cover three different light placements)."""
+
+    lr: tuple[int, int] = (120, 90)
+    sr: int = 4
+    views: int = 40
+    test_views: int = 8
+    psf_sigma: float = 0.375
+    seed: int = 0
+    ss: int = 2
+    relit_views: int = 3
+    lights_per_view: int = 1
+
+    def validate(self) -> None:
+        W, H = self.lr
+        if W < 8 or H < 8:
+            raise SrvolError(f"--lr {W}x{H}: too small (at least 8x8)")
+        if self.sr < 1 or self.sr > 16:
+            raise SrvolError(f"--sr {self.sr}: must be 1..16")
+        if self.views < 1 or self.test_views < 1:
+            raise SrvolError("--views and --test-views must be >= 1")
+        if not (0 <= self.psf_sigma <= 5):
+            raise SrvolError(f"--psf-sigma {self.psf_sigma}: must be in [0, 5] LR pixels")
+
+
+def fibonacci_directions(n: int, offset: float) -> np.ndarray:
+    """n unit vectors spread evenly over the sphere; ``offset`` in [0, 1) shifts the spiral."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    golden = math.pi * (3 - math.sqrt(5))
+    phi = golden * i + 2 * math.pi * offset
+    r = np.sqrt(1 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
+
+
+def make_cameras(opts: SynthOptions, n: int, offset: float) -> list[Camera]:
+    W, H = opts.lr
+    f = 0.95 * (H / 2) / math.tan(math.asin(0.82 / CAMERA_DISTANCE))
+    K = torch.tensor([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]], dtype=torch.float64)
+    cams = []
+    for d in fibonacci_directions(n, offset):
+        d = 0.97 * d + 0.03 * np.array([0, 0, 1.0])  # keep off the exact poles
+        d /= np.linalg.norm(d)
+        cams.append(Camera.look_at(CAMERA_DISTANCE * d, [0, 0, 0], [0, 0, 1], K, W, H))
+    return cams
+
+
+def moved_lights(camera: Camera, count: int, rng: np.random.Generator, first: int = 0) -> list[PointLight]:
+    """Lights away from the camera: rotated about the vertical axis by 40-80 deg, raised or lowered.
+
+    Pattern k alternates the side (k even: left, odd: right) and lifts every third light above.
+    """
+    c = camera.center.numpy()
+    out = []
+    for k in range(first, first + count):
+        ang = math.radians((40 + 40 * rng.random()) * (1 if k % 2 == 0 else -1))
+        rot = np.array([[math.cos(ang), -math.sin(ang), 0], [math.sin(ang), math.cos(ang), 0], [0, 0, 1]])
+        p = rot @ c
+        p[2] += (0.8 if k % 3 == 2 else -0.4) * (1 + 0.2 * rng.random())
+        p = p / np.linalg.norm(p) * 2.2
+        scale = (2.2 / CAMERA_DISTANCE) ** 2
+        out.append(PointLight.make(p.tolist(), [LIGHT_INTENSITY * scale] * 3))
+    return out
+
+
+def gt_mesh(surface: Surface, resolution: int = 256):
+    """The GT surface as a triangle mesh (marching cubes of the analytic SDF, or the mesh itself)."""
+    import trimesh
+    from skimage.measure import marching_cubes
+
+    if isinstance(surface, MeshSurface):
+        return surface.mesh
+    lin = np.linspace(-1, 1, resolution)
+    X, Y, Z = np.meshgrid(lin, lin, lin, indexing="ij")
+    pts = torch.from_numpy(np.stack([X, Y, Z], -1).reshape(-1, 3))
+    chunk = 1 << 20
+    d = torch.cat([surface.sdf(pts[s:s + chunk]) for s in range(0, len(pts), chunk)])
+    vol = d.reshape(resolution, resolution, resolution).numpy()
+    step = lin[1] - lin[0]
+    v, f, _, _ = marching_cubes(vol, level=0.0, spacing=(step,) * 3)
+    v = v - 1.0
+    return trimesh.Trimesh(vertices=v, faces=f[:, ::-1], process=True)
+
+
+def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force: bool = False,
+               progress: bool = True) -> Path:
+    """Write built-in scene ``name`` into ``out`` (atomically) and return its path."""
+    opts.validate()
+    spec = get_scene(name)
+    torch.manual_seed(opts.seed)
+    rng = np.random.default_rng(opts.seed)
+    surface = spec.make_surface()
+    train_cams = make_cameras(opts, opts.views, offset=0.0)
+    test_cams = make_cameras(opts, opts.test_views, offset=0.37)
+    names_train = [f"{i:03d}" for i in range(opts.views)]
+    names_test = [f"{opts.views + i:03d}" for i in range(opts.test_views)]
+    info = SceneInfo(color_space="linear", light_intensity=(LIGHT_INTENSITY,) * 3, psf_sigma_lr_px=opts.psf_sigma,
+                     sr_factor=opts.sr, train=tuple(names_train), test=tuple(names_test))
+    t0 = time.time()
+    with AtomicFolder(out, force=force) as tmp:
+        views: list[View] = []
+        hr_cams = {}
+        jobs = list(zip(names_train + names_test, train_cams + test_cams))
+        bar = tqdm(jobs, desc=f"synth {name}", unit="view", disable=not progress)
+        for stem, cam in bar:
+            hr_cam = cam.scaled(opts.sr)
+            light = PointLight.at_camera(cam, [LIGHT_INTENSITY] * 3)
+            is_test = stem in names_test
+            # Training views are blurred by the PSF (sigma_hr = 1.5 px at x4), so one ray per
+            # HR pixel suffices there; test views are GT and get ss x ss sub-pixel rays.
+            r = render(surface, hr_cam, light, ss=opts.ss if is_test else 1, shadows=False, maps=is_test)
+            lr = blur_decimate(r.rgb, opts.sr, opts.psf_sigma)
+            cov = blur_decimate(r.coverage, opts.sr, opts.psf_sigma)
+            views.append(View(name=stem, camera=cam, image=lr, mask=cov > 0.5))
+            if is_test:
+                hr_cams[stem] = camera_to_json(hr_cam)
+                write_exr(tmp / "gt" / "hr" / f"{stem}.exr", r.rgb)
+                write_exr(tmp / "gt" / "normal" / f"{stem}.exr", r.normal)
+                write_exr(tmp / "gt" / "albedo" / f"{stem}.exr", r.albedo)
+        relit = []
+        for i, (stem, cam) in enumerate(list(zip(names_test, test_cams))[: opts.relit_views]):
+            for k, light in enumerate(moved_lights(cam, opts.lights_per_view, rng, first=i)):
+                rname = f"{stem}_l{i + k}"
+                r = render(surface, cam.scaled(opts.sr), light, ss=opts.ss, shadows=True, maps=False)
+                write_exr(tmp / "gt" / "relit" / f"{rname}.exr", r.rgb)
+                relit.append({"name": rname, "camera": stem, "light_pos": light.position.tolist(),
+                              "intensity": light.intensity.tolist()})
+        write_scene_folder(tmp, views, info)
+        atomic_write_text(tmp / "gt" / "hr_cameras.json", json.dumps(hr_cams, indent=1))
+        atomic_write_text(tmp / "gt" / "relit.json", json.dumps(relit, indent=1))
+        gt_mesh(surface).export(tmp / "gt" / "mesh.ply")
+        atomic_write_text(tmp / "gt" / "synth.json", json.dumps(
+            {"scene": name, "options": {**opts.__dict__, "lr": list(opts.lr)},
+             "seconds": round(time.time() - t0, 2)}, indent=1))
+    return out

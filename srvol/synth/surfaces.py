@@ -1,0 +1,175 @@
+"""Exact ray casting of ground-truth surfaces, independent of the neural volume renderer.
+
+Two kinds: an analytic SDF (sphere tracing in float64 with Newton refinement and
+autograd normals) and a triangle mesh (embree through trimesh, smooth normals).
+Both return a :class:`Hit` per ray; materials come from a callable on 3-D points.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from srvol.types import MaterialFn, Rays, SdfFn
+
+
+@dataclass(frozen=True)
+class Hit:
+    """hit (N,) bool, t (N,) distance (inf on miss), points (N, 3), normals (N, 3) unit (zero on miss)."""
+
+    hit: Tensor
+    t: Tensor
+    points: Tensor
+    normals: Tensor
+
+
+def ray_sphere(rays: Rays, radius: float) -> tuple[Tensor, Tensor]:
+    """Entry and exit distances of rays through the origin-centred sphere; entry > exit on a miss."""
+    b = (rays.origins * rays.directions).sum(-1)
+    c = (rays.origins * rays.origins).sum(-1) - radius * radius
+    disc = b * b - c
+    s = disc.clamp_min(0).sqrt()
+    near = torch.where(disc > 0, (-b - s).clamp_min(0.0), torch.full_like(b, 1.0))
+    far = torch.where(disc > 0, -b + s, torch.zeros_like(b))
+    return near, far
+
+
+def sdf_normals(sdf: SdfFn, x: Tensor) -> Tensor:
+    with torch.enable_grad():
+        x = x.detach().requires_grad_(True)
+        d = sdf(x)
+        (g,) = torch.autograd.grad(d.sum(), x)
+    return g / g.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+@dataclass
+class AnalyticSurface:
+    """A surface given by an SDF that may over-estimate distance by up to ``lipschitz``."""
+
+    sdf: SdfFn
+    material: MaterialFn
+    lipschitz: float = 1.0
+    bound: float = 1.0
+    max_steps: int = 160
+    eps: float = 1e-5
+
+    def intersect(self, rays: Rays, t_max: Tensor | None = None) -> Hit:
+        o = rays.origins.double()
+        d = rays.directions.double()
+        n = o.shape[0]
+        near, far = ray_sphere(Rays(o, d), self.bound)
+        if t_max is not None:
+            far = torch.minimum(far, t_max.double())
+        t = near.clone()
+        hit = torch.zeros(n, dtype=torch.bool)
+        idx = torch.nonzero(near < far).squeeze(-1)
+        # March only the live rays, kept compact; finished ones are written back once.
+        oa, da, ta, fa = o[idx], d[idx], t[idx], far[idx]
+        step_scale = 1.0 / self.lipschitz
+        for _ in range(self.max_steps):
+            if idx.numel() == 0:
+                break
+            dist = self.sdf(oa + ta[:, None] * da)
+            done = dist.abs() < self.eps
+            ta = ta + dist * step_scale
+            finished = done | (ta >= fa)
+            if finished.any():
+                hit[idx[done]] = True
+                t[idx[finished]] = ta[finished]
+                keep = ~finished
+                idx, oa, da, ta, fa = idx[keep], oa[keep], da[keep], ta[keep], fa[keep]
+        if idx.numel():  # grazing rays still creeping along the surface at the step limit
+            t[idx] = ta
+            hit[idx[self.sdf(oa + ta[:, None] * da).abs() < 50 * self.eps]] = True
+        # Newton refinement along the ray: t <- t - d(t) / (dd/dt)
+        idx = torch.nonzero(hit).squeeze(-1)
+        if idx.numel():
+            ti = t[idx]
+            for _ in range(3):
+                with torch.enable_grad():
+                    x = (o[idx] + ti[:, None] * d[idx]).requires_grad_(True)
+                    dist = self.sdf(x)
+                    (g,) = torch.autograd.grad(dist.sum(), x)
+                dd = (g * d[idx]).sum(-1)
+                ti = ti - torch.where(dd.abs() > 1e-3, dist.detach() / dd, torch.zeros_like(dd))
+            t[idx] = ti
+        t = torch.where(hit, t, torch.full_like(t, float("inf")))
+        pts = o + torch.where(hit, t, torch.zeros_like(t))[:, None] * d
+        normals = torch.zeros_like(pts)
+        if idx.numel():
+            normals[idx] = sdf_normals(self.sdf, pts[idx])
+        return Hit(hit=hit, t=t, points=pts, normals=normals)
+
+
+@dataclass
+class MeshSurface:
+    """A triangle mesh (trimesh.Trimesh) with barycentric-interpolated vertex normals."""
+
+    mesh: "object"
+    material: MaterialFn
+
+    def __post_init__(self):
+        import trimesh
+
+        self._intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(self.mesh)
+        self._vn = np.asarray(self.mesh.vertex_normals, dtype=np.float64)
+        self._faces = np.asarray(self.mesh.faces)
+        self._verts = np.asarray(self.mesh.vertices, dtype=np.float64)
+
+    def sdf(self, x: Tensor) -> Tensor:
+        """Signed distance (negative inside) -- slow; used only for tests and the mesh GT."""
+        import trimesh
+
+        pq = trimesh.proximity.ProximityQuery(self.mesh)
+        return -torch.from_numpy(pq.signed_distance(x.detach().cpu().numpy())).to(x)
+
+    def intersect(self, rays: Rays, t_max: Tensor | None = None) -> Hit:
+        o = rays.origins.detach().cpu().double().numpy()
+        d = rays.directions.detach().cpu().double().numpy()
+        n = o.shape[0]
+        tri, ray_idx, locs = self._intersector.intersects_id(o, d, multiple_hits=False, return_locations=True)
+        t = np.full(n, np.inf)
+        pts = o.copy()
+        normals = np.zeros((n, 3))
+        if len(ray_idx):
+            tt = ((locs - o[ray_idx]) * d[ray_idx]).sum(-1)
+            t[ray_idx] = tt
+            pts[ray_idx] = locs
+            f = self._faces[tri]
+            a, b, c = self._verts[f[:, 0]], self._verts[f[:, 1]], self._verts[f[:, 2]]
+            bary = _barycentric(locs, a, b, c)
+            nn = (bary[:, :1] * self._vn[f[:, 0]] + bary[:, 1:2] * self._vn[f[:, 1]]
+                  + bary[:, 2:] * self._vn[f[:, 2]])
+            # Keep shading normals facing the viewer's side of the geometric face.
+            fn = np.cross(b - a, c - a)
+            flip = (nn * fn).sum(-1) < 0
+            nn[flip] *= -1
+            normals[ray_idx] = nn / np.linalg.norm(nn, axis=-1, keepdims=True).clip(1e-12)
+        hit = np.isfinite(t)
+        if t_max is not None:
+            tm = t_max.detach().cpu().double().numpy()
+            hit &= t < tm
+            t[~hit] = np.inf
+            normals[~hit] = 0
+        return Hit(hit=torch.from_numpy(hit), t=torch.from_numpy(t), points=torch.from_numpy(pts),
+                   normals=torch.from_numpy(normals))
+
+
+def _barycentric(p, a, b, c):
+    v0, v1, v2 = b - a, c - a, p - a
+    d00 = (v0 * v0).sum(-1)
+    d01 = (v0 * v1).sum(-1)
+    d11 = (v1 * v1).sum(-1)
+    d20 = (v2 * v0).sum(-1)
+    d21 = (v2 * v1).sum(-1)
+    den = np.where(np.abs(d00 * d11 - d01 * d01) < 1e-30, 1e-30, d00 * d11 - d01 * d01)
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    return np.stack([1 - v - w, v, w], axis=-1)
+
+
+Surface = AnalyticSurface | MeshSurface
+IntersectFn = Callable[[Rays], Hit]

@@ -1,0 +1,40 @@
+"""Shared fixtures: an analytic sphere SDF and constant materials, so rendering and
+export tests need no training."""
+from __future__ import annotations
+
+import os
+
+import pytest
+import torch
+
+from srvol.types import SurfaceMaterial
+
+torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "2")))
+
+SPHERE_RADIUS = 0.5
+
+
+def sphere_sdf(x: torch.Tensor) -> torch.Tensor:
+    return x.norm(dim=-1) - SPHERE_RADIUS
+
+
+def grey_material(x: torch.Tensor) -> SurfaceMaterial:
+    return SurfaceMaterial.constant(x.shape[0], albedo=(0.6, 0.5, 0.4), specular=0.04, alpha=0.2,
+                                    device=x.device, dtype=x.dtype)
+
+
+@pytest.fixture
+def sphere():
+    """(sdf_fn, material_fn) of a grey sphere of radius 0.5 at the origin."""
+    return sphere_sdf, grey_material
+
+
+@pytest.fixture(scope="session")
+def default_scene(tmp_path_factory):
+    """The default built-in scene at a small size (LR 40x30, 12 + 2 views): written once per session."""
+    from srvol.synth.generate import SynthOptions, synthesize
+
+    out = tmp_path_factory.mktemp("scenes") / "bumpy_small"
+    synthesize("bumpy", out, SynthOptions(lr=(40, 30), views=12, test_views=2, relit_views=1, ss=1),
+               progress=False)
+    return out
