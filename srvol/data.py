@@ -184,6 +184,22 @@ def _floats(value, n: int | None = None) -> list[float]:
     return vals
 
 
+MAX_IMAGE_SIDE = 1 << 16
+
+
+def _image_size(value) -> tuple[int, int]:
+    """img_size [W, H]: two whole numbers (JSON may write them as 640.0)."""
+    if isinstance(value, (str, bytes, dict)) or len(value) != 2:
+        raise ValueError(f"img_size must be [W, H], is {value!r}")
+    out = []
+    for x in value:
+        f = float(x)
+        if not (math.isfinite(f) and f == int(f) and abs(f) <= MAX_IMAGE_SIDE):
+            raise ValueError(f"img_size must hold whole numbers up to {MAX_IMAGE_SIDE}, is {value!r}")
+        out.append(int(f))
+    return out[0], out[1]
+
+
 def _parse_camera(path: Path, key: str, entry) -> Camera:
     where = f"{path}: camera '{key}'"
     if not isinstance(entry, dict):
@@ -191,11 +207,10 @@ def _parse_camera(path: Path, key: str, entry) -> Camera:
     try:
         K = np.asarray(_floats(entry["K"]), dtype=np.float64)
         W2C = np.asarray(_floats(entry["W2C"]), dtype=np.float64)
-        size = entry["img_size"]
-        W, H = int(size[0]), int(size[1])
+        W, H = _image_size(entry["img_size"])
     except KeyError as e:
         raise SceneError(f"{where} lacks {e.args[0]}") from None
-    except (TypeError, ValueError, IndexError) as e:
+    except (TypeError, ValueError, IndexError, OverflowError) as e:
         raise SceneError(f"{where} has a malformed value ({e})") from None
     if K.size == 16:
         K = K.reshape(4, 4)[:3, :3]
@@ -252,12 +267,12 @@ def _parse_info(path: Path) -> SceneInfo:
         test = tuple(str(s) for s in split.get("test", []))
     except SceneError:
         raise
-    except (TypeError, ValueError, AttributeError) as e:
+    except (TypeError, ValueError, AttributeError, OverflowError) as e:
         raise SceneError(f"{path}: malformed value ({e})") from None
     if not (math.isfinite(sigma) and sigma >= 0):
         raise SceneError(f"{path}: psf sigma_lr_px must be a non-negative number, is {sigma}")
-    if sr < 1:
-        raise SceneError(f"{path}: sr_factor must be >= 1, is {sr}")
+    if not 1 <= sr <= 64:
+        raise SceneError(f"{path}: sr_factor must be in 1..64, is {sr}")
     return SceneInfo(color_space=cs, light_intensity=intensity, psf_sigma_lr_px=sigma,
                      sr_factor=sr, train=train, test=test)
 
@@ -337,8 +352,8 @@ def _load_view_image(path: Path, info: SceneInfo, cam: Camera) -> np.ndarray:
                          f"{cam.width}x{cam.height} in the cameras file")
     if not np.isfinite(img).all():
         raise SceneError(f"{path}: image has non-finite pixels")
-    if img.shape[2] == 1:
-        img = np.repeat(img, 3, axis=2)
+    if img.shape[2] <= 2:  # grey or grey + alpha
+        img = np.repeat(img[..., :1], 3, axis=2)
     return np.ascontiguousarray(img[..., :3], dtype=np.float32)
 
 
