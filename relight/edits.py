@@ -1,0 +1,231 @@
+"""Material edits for relighting: ``--material SPEC`` -> :class:`MaterialEdit` -> a new SurfaceMaterial.
+
+Specs (combinable with commas, or by repeating ``--material``; applied in this order:
+preset, then albedo / albedo-texture, then roughness, then specular / no-specular):
+
+* ``gold``             a metal-like gold within srvol's BRDF (see :data:`GOLD`).
+* ``no-specular``      F0 = 0: the microfacet lobe vanishes, the diffuse lobe is untouched.
+* ``albedo=r,g,b``     constant linear diffuse albedo, each in [0, 1].
+* ``albedo-texture=PNG``  an sRGB PNG (decoded to linear) as diffuse albedo. Mapping: with
+  surface UVs (an exported asset) the texture is laid in the asset's UVs (origin bottom-left,
+  texel row = (1 - v) * H, as :mod:`srvol.export.types`); without UVs (the neural model) it is
+  projected spherically about the scene origin: ``u = atan2(y, x) / 2pi + 0.5`` (wrapping),
+  ``v = 1 - acos(z / |x|) / pi`` so that the image's top row lands on the north pole (+z).
+* ``roughness=x``      perceptual roughness r in [0, 1]; writes GGX alpha = r^2 (floored at ALPHA_MIN).
+* ``specular=x``       F0 (grey specular reflectance at normal incidence) in [0, 1].
+
+**Gold, honestly.** Real gold's F0 is coloured, about (1.00, 0.71, 0.29) linear, and it has no
+diffuse lobe. srvol's BRDF has one grey F0 per point (``specular`` is (N, 1)), so a coloured
+mirror is not expressible. The preset keeps the two facts the BRDF can hold: the *magnitude* of
+gold's reflectance goes to a strong grey F0 (0.75, the mean of gold's F0), and its *hue* goes to
+a diffuse albedo of gold's F0 colour scaled to 0.25 (so albedo + F0 stays below 1 in every
+channel). Roughness r = 0.3. Highlights are therefore white-ish rather than gold, and
+the body colour is carried by the diffuse lobe; a faithful metal needs an (N, 3) F0 in the BRDF.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from srvol.errors import SrvolError
+from srvol.types import ALPHA_MIN, SurfaceMaterial
+
+GOLD_F0_RGB = (1.00, 0.71, 0.29)
+"""Gold's specular reflectance at normal incidence, linear RGB (what a coloured-F0 BRDF would use)."""
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named material: constant albedo (linear RGB), F0 and perceptual roughness."""
+
+    name: str
+    albedo: tuple[float, float, float]
+    specular: float
+    roughness: float
+
+
+GOLD = Preset(name="gold", albedo=tuple(0.25 * c for c in GOLD_F0_RGB), specular=0.75, roughness=0.3)
+PRESETS = {"gold": GOLD}
+SPEC_HELP = ("gold | no-specular | albedo=r,g,b | albedo-texture=PNG | roughness=x (perceptual) | "
+             "specular=x (F0); combine with commas or repeat --material")
+
+
+@dataclass(frozen=True, eq=False)
+class AlbedoTexture:
+    """A linear RGB texture (H, W, 3) float32 read from an sRGB PNG."""
+
+    path: Path
+    pixels: np.ndarray
+
+    @staticmethod
+    def read(path: str | Path) -> "AlbedoTexture":
+        from srvol.images import read_png
+
+        p = Path(path)
+        if p.suffix.lower() != ".png" or not p.is_file():
+            raise SrvolError(f"albedo-texture={path}: not an existing .png file")
+        img = read_png(p, srgb=True)
+        if img.shape[2] == 1:
+            img = np.repeat(img, 3, axis=2)
+        return AlbedoTexture(path=p, pixels=np.ascontiguousarray(img[..., :3], dtype=np.float32))
+
+
+@dataclass(frozen=True)
+class MaterialEdit:
+    """What to change in a SurfaceMaterial; ``None`` / False leaves a parameter as it is."""
+
+    preset: Preset | None = None
+    albedo: tuple[float, float, float] | None = None
+    albedo_texture: AlbedoTexture | None = None
+    roughness: float | None = None
+    specular: float | None = None
+    no_specular: bool = False
+
+    @property
+    def is_identity(self) -> bool:
+        return self == MaterialEdit()
+
+    def describe(self) -> str:
+        parts = []
+        if self.preset:
+            parts.append(self.preset.name)
+        if self.albedo:
+            parts.append("albedo=" + ",".join(f"{c:g}" for c in self.albedo))
+        if self.albedo_texture:
+            parts.append(f"albedo-texture={self.albedo_texture.path.name}")
+        if self.roughness is not None:
+            parts.append(f"roughness={self.roughness:g}")
+        if self.specular is not None:
+            parts.append(f"specular={self.specular:g}")
+        if self.no_specular:
+            parts.append("no-specular")
+        return ",".join(parts) or "as trained"
+
+    def apply(self, material: SurfaceMaterial, points: Tensor, uv: Tensor | None = None) -> SurfaceMaterial:
+        """The edited material at ``points`` (N, 3) (scene frame); ``uv`` (N, 2) if the surface has UVs."""
+        n = points.shape[0]
+        dt, dev = material.albedo.dtype, material.albedo.device
+        albedo, specular, alpha = material.albedo, material.specular, material.alpha
+        if self.preset is not None:
+            albedo = torch.tensor(self.preset.albedo, dtype=dt, device=dev).expand(n, 3)
+            specular = torch.full((n, 1), self.preset.specular, dtype=dt, device=dev)
+            alpha = torch.full((n, 1), max(self.preset.roughness ** 2, ALPHA_MIN), dtype=dt, device=dev)
+        if self.albedo is not None:
+            albedo = torch.tensor(self.albedo, dtype=dt, device=dev).expand(n, 3)
+        if self.albedo_texture is not None:
+            coords = uv if uv is not None else spherical_uv(points)
+            albedo = sample_texture(torch.from_numpy(self.albedo_texture.pixels), coords.to(dt)).to(dev)
+        if self.roughness is not None:
+            alpha = torch.full((n, 1), max(self.roughness ** 2, ALPHA_MIN), dtype=dt, device=dev)
+        if self.specular is not None:
+            specular = torch.full((n, 1), self.specular, dtype=dt, device=dev)
+        if self.no_specular:
+            specular = torch.zeros((n, 1), dtype=dt, device=dev)
+        return SurfaceMaterial(albedo=albedo.contiguous(), specular=specular.contiguous(), alpha=alpha.contiguous())
+
+
+def spherical_uv(points: Tensor) -> Tensor:
+    """(N, 3) -> (N, 2) UVs of the spherical projection about the origin (v = 1 at +z)."""
+    r = points.norm(dim=-1).clamp_min(1e-9)
+    u = torch.atan2(points[:, 1], points[:, 0]) / (2 * math.pi) + 0.5
+    v = 1.0 - torch.acos((points[:, 2] / r).clamp(-1, 1)) / math.pi
+    return torch.stack([u, v], dim=-1)
+
+
+def sample_texture(texture: Tensor, uv: Tensor, wrap_u: bool = False) -> Tensor:
+    """Bilinear lookup of a (H, W, C) texture at UVs (N, 2) -> (N, C).
+
+    UV origin bottom-left: texel (row i, column j) has its centre at
+    ``u = (j + 0.5) / W``, ``v = 1 - (i + 0.5) / H``. Coordinates are clamped to the edge
+    texels (the exporter dilates into gutters), or wrapped in u when ``wrap_u``.
+    """
+    H, W, _ = texture.shape
+    x = uv[:, 0].to(texture.dtype) * W - 0.5
+    y = (1.0 - uv[:, 1].to(texture.dtype)) * H - 0.5
+    x0, y0 = torch.floor(x), torch.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.long(), y0.long()
+
+    def col(c: Tensor) -> Tensor:
+        return torch.remainder(c, W) if wrap_u else c.clamp(0, W - 1)
+
+    xa, xb = col(x0), col(x0 + 1)
+    ya, yb = y0.clamp(0, H - 1), (y0 + 1).clamp(0, H - 1)
+    top = texture[ya, xa] * (1 - fx) + texture[ya, xb] * fx
+    bottom = texture[yb, xa] * (1 - fx) + texture[yb, xb] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+# ----------------------------------------------------------------------------- parsing
+
+def _unit_number(key: str, text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise SrvolError(f"material {key}={text}: not a number") from None
+    if not (math.isfinite(x) and 0.0 <= x <= 1.0):
+        raise SrvolError(f"material {key}={text}: must be in [0, 1]")
+    return x
+
+
+def _tokens(specs: Sequence[str]) -> list[str]:
+    """Split specs on commas, re-attaching the bare numbers of ``albedo=r,g,b`` to their key."""
+    out: list[str] = []
+    for spec in specs:
+        for part in (p.strip() for p in spec.split(",")):
+            if not part:
+                continue
+            if out and "=" not in part and out[-1].startswith("albedo=") and _is_number(part):
+                out[-1] += "," + part
+            else:
+                out.append(part)
+    return out
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
+def parse_material(specs: Sequence[str]) -> MaterialEdit:
+    """``["gold", "roughness=0.2"]`` or ``["albedo=0.8,0.2,0.1,specular=0.5"]`` -> MaterialEdit.
+
+    Unknown or malformed specs raise SrvolError with one line naming the spec.
+    """
+    edit = MaterialEdit()
+    for tok in _tokens(specs):
+        key, _, value = tok.partition("=")
+        key = key.strip().lower()
+        if key in PRESETS and not value:
+            edit = replace(edit, preset=PRESETS[key])
+        elif key == "no-specular" and not value:
+            edit = replace(edit, no_specular=True)
+        elif key == "albedo" and value:
+            parts = value.split(",")
+            if len(parts) == 1:
+                parts = parts * 3
+            if len(parts) != 3:
+                raise SrvolError(f"material albedo={value}: expected one or three numbers")
+            edit = replace(edit, albedo=tuple(_unit_number("albedo", p) for p in parts))
+        elif key == "albedo-texture" and value:
+            edit = replace(edit, albedo_texture=AlbedoTexture.read(value))
+        elif key == "roughness" and value:
+            edit = replace(edit, roughness=_unit_number("roughness", value))
+        elif key == "specular" and value:
+            edit = replace(edit, specular=_unit_number("specular", value))
+        else:
+            raise SrvolError(f"unknown material spec {tok!r} (expected {SPEC_HELP})")
+    if edit.no_specular and edit.specular is not None:
+        raise SrvolError("material: no-specular contradicts specular=x (give one of them)")
+    if edit.albedo is not None and edit.albedo_texture is not None:
+        raise SrvolError("material: albedo=r,g,b contradicts albedo-texture=PNG (give one of them)")
+    return edit

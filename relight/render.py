@@ -1,0 +1,367 @@
+"""Point-light rendering with shadows, of the neural fields and of an exported asset.
+
+Two surfaces, one image formation. A :class:`FieldScene` sphere-traces an SDF (the trained
+model, or an analytic stand-in); an :class:`AssetScene` ray-casts an exported triangle mesh with
+embree and reads its textures bilinearly. Both hand their hits to :func:`render_scene`, which
+applies the :class:`~srvol.relight.edits.MaterialEdit` and calls :func:`srvol.brdf.shade` --
+the BRDF used in training -- with the general light direction (l != v) and a shadow test
+towards the light.
+
+Conventions are those of :mod:`srvol.types`: scene frame (object in the unit sphere), OpenCV
+cameras, linear RGB, light of radiant intensity I (W/sr). A pixel is the mean of ``ss x ss``
+rays on a regular sub-pixel grid (as the ground-truth renderer of :mod:`srvol.synth.render`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from srvol.brdf import shade
+from srvol.errors import SrvolError
+from srvol.export.types import Asset
+from srvol.psf import box_offsets
+from srvol.relight.edits import MaterialEdit, sample_texture
+from srvol.types import Camera, MaterialFn, PointLight, Rays, SdfFn, SurfaceMaterial
+
+RAY_CHUNK = 1 << 17
+"""Rays per batch in :func:`render_scene` (bounds memory: ~100 MB per batch for a grid model)."""
+
+
+@dataclass(frozen=True)
+class SurfaceHits:
+    """The rays of a batch that hit the surface (M of them).
+
+    index (M,) long: which rays of the batch; t (M,) distance along the ray; points (M, 3);
+    normals (M, 3) unit shading normals, facing the side the ray came from;
+    uv (M, 2) texture coordinates (origin bottom-left) or None where the surface has none.
+    """
+
+    index: Tensor
+    t: Tensor
+    points: Tensor
+    normals: Tensor
+    uv: Tensor | None = None
+
+
+class RelightScene(Protocol):
+    """A surface that can be ray-cast, shadow-tested and asked for its material."""
+
+    def intersect(self, rays: Rays) -> SurfaceHits:
+        ...
+
+    def material_at(self, hits: SurfaceHits) -> SurfaceMaterial:
+        ...
+
+    def light_visibility(self, points: Tensor, normals: Tensor, light: PointLight) -> Tensor:
+        """(M,) 1 where the segment from each point to the light is free, else 0."""
+        ...
+
+    def contains(self, point: Tensor) -> bool:
+        """Whether a scene point (3,) lies inside the object."""
+        ...
+
+
+@dataclass(frozen=True)
+class RelitImage:
+    """A rendered image, numpy float32.
+
+    rgb (H, W, 3) linear radiance (0 on background); mask (H, W) coverage in [0, 1] (fraction of
+    sub-pixel rays that hit); normal (H, W, 3) mean world normal of the hits, re-normalised (zero
+    on background); depth (H, W) mean distance along the ray of the hits (zero on background).
+    """
+
+    rgb: np.ndarray
+    mask: np.ndarray
+    normal: np.ndarray
+    depth: np.ndarray
+
+
+# ----------------------------------------------------------------------------- image formation
+
+def shade_hits(scene: RelightScene, hits: SurfaceHits, rays: Rays, light: PointLight,
+               edit: MaterialEdit, shadows: bool) -> Tensor:
+    """(M, 3) radiance towards the camera at the hits of ``rays`` under ``light``."""
+    material = edit.apply(scene.material_at(hits), hits.points, hits.uv)
+    visibility = scene.light_visibility(hits.points, hits.normals, light) if shadows else None
+    view_dir = -rays.directions[hits.index]
+    return shade(material, hits.normals, hits.points, view_dir, light, visibility)
+
+
+def render_scene(scene: RelightScene, camera: Camera, light: PointLight, edit: MaterialEdit = MaterialEdit(),
+                 shadows: bool = True, ss: int = 1, chunk: int = RAY_CHUNK) -> RelitImage:
+    """Render ``camera``'s image of ``scene`` under ``light``, each pixel the mean of ss x ss rays."""
+    cam = camera.to("cpu", torch.float32)
+    lit = light.to("cpu", torch.float32)
+    H, W = cam.height, cam.width
+    centers = cam.pixel_centers()
+    offsets = box_offsets(ss)
+    rgb = torch.zeros(H * W, 3)
+    cov = torch.zeros(H * W)
+    nsum = torch.zeros(H * W, 3)
+    dsum = torch.zeros(H * W)
+    with torch.no_grad():
+        for off in offsets:
+            for s in range(0, H * W, chunk):
+                rays = cam.rays_at(centers[s:s + chunk] + off)
+                hits = scene.intersect(rays)
+                if hits.index.numel() == 0:
+                    continue
+                idx = hits.index + s
+                rgb[idx] += shade_hits(scene, hits, rays, lit, edit, shadows).float()
+                cov[idx] += 1
+                nsum[idx] += hits.normals.float()
+                dsum[idx] += hits.t.float()
+    n_rays = len(offsets)
+    depth = torch.where(cov > 0, dsum / cov.clamp_min(1), torch.zeros_like(dsum))
+    normal = nsum / nsum.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return RelitImage(rgb=(rgb / n_rays).reshape(H, W, 3).numpy(), mask=(cov / n_rays).reshape(H, W).numpy(),
+                      normal=normal.reshape(H, W, 3).numpy(), depth=depth.reshape(H, W).numpy())
+
+
+# ----------------------------------------------------------------------------- neural path (SDF)
+
+@dataclass(frozen=True)
+class TraceOptions:
+    """Sphere tracing of an SDF.
+
+    bound:      radius of the origin-centred sphere holding the object (scene frame: 1).
+    step_scale: fraction of the SDF value stepped each iteration; < 1 for fields that may
+                over-estimate the distance (a trained network; an analytic SDF with Lipschitz
+                constant L needs 1 / L).
+    max_steps:  iterations before a ray is given up (a ray still within 10 eps then counts as a hit).
+    eps:        a ray has hit when the SDF falls below eps.
+    shadow_bias: shadow rays start this far off the surface along the normal.
+    """
+
+    bound: float = 1.0
+    step_scale: float = 0.9
+    max_steps: int = 192
+    eps: float = 1e-4
+    shadow_bias: float = 2e-3
+
+
+def ray_sphere(origins: Tensor, directions: Tensor, radius: float) -> tuple[Tensor, Tensor]:
+    """Entry (clamped at 0) and exit distances of rays through an origin-centred sphere; entry >= exit on a miss."""
+    b = (origins * directions).sum(-1)
+    c = (origins * origins).sum(-1) - radius * radius
+    disc = b * b - c
+    s = disc.clamp_min(0).sqrt()
+    near = torch.where(disc > 0, (-b - s).clamp_min(0.0), torch.ones_like(b))
+    far = torch.where(disc > 0, -b + s, torch.zeros_like(b))
+    return near, far
+
+
+def sphere_trace(sdf_fn: SdfFn, origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tensor,
+                 opts: TraceOptions) -> tuple[Tensor, Tensor]:
+    """March rays from ``t_near`` until the SDF falls below ``opts.eps`` or ``t_far`` is passed.
+
+    Returns hit (N,) bool and t (N,) (the hit distance, moved onto the surface by the last SDF
+    value; undefined where there is no hit). Only live rays are evaluated: the active set is
+    compacted every step.
+    """
+    n = origins.shape[0]
+    hit = torch.zeros(n, dtype=torch.bool)
+    t = t_far.clone()
+    idx = torch.nonzero(t_near < t_far).squeeze(-1)
+    oa, da, ta, fa = origins[idx], directions[idx], t_near[idx], t_far[idx]
+    for _ in range(opts.max_steps):
+        if idx.numel() == 0:
+            break
+        d = sdf_fn(oa + ta[:, None] * da).reshape(-1).to(ta.dtype)
+        done = d < opts.eps
+        if done.any():
+            hit[idx[done]] = True
+            t[idx[done]] = ta[done] + d[done]
+        ta = ta + d * opts.step_scale
+        keep = ~done & (ta < fa)
+        idx, oa, da, ta, fa = idx[keep], oa[keep], da[keep], ta[keep], fa[keep]
+    if idx.numel():  # grazing rays creeping along the surface at the step limit
+        d = sdf_fn(oa + ta[:, None] * da).reshape(-1).to(ta.dtype)
+        close = d.abs() < 10 * opts.eps
+        hit[idx[close]] = True
+        t[idx[close]] = ta[close] + d[close]
+    return hit, t
+
+
+def sdf_normals(sdf_fn: SdfFn, points: Tensor, chunk: int = RAY_CHUNK) -> Tensor:
+    """(N, 3) unit normals: the normalised autograd gradient of the SDF."""
+    out = []
+    for s in range(0, points.shape[0], chunk):
+        with torch.enable_grad():
+            x = points[s:s + chunk].detach().requires_grad_(True)
+            (g,) = torch.autograd.grad(sdf_fn(x).sum(), x)
+        out.append(g / g.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+    return torch.cat(out) if out else points.new_zeros(0, 3)
+
+
+@dataclass(frozen=True)
+class FieldScene:
+    """The neural path: an SDF callable and a material callable (float32 in and out)."""
+
+    sdf_fn: SdfFn
+    material_fn: MaterialFn
+    options: TraceOptions = TraceOptions()
+
+    def intersect(self, rays: Rays) -> SurfaceHits:
+        o, d = rays.origins.float(), rays.directions.float()
+        near, far = ray_sphere(o, d, self.options.bound)
+        hit, t = sphere_trace(self.sdf_fn, o, d, near, far, self.options)
+        idx = torch.nonzero(hit).squeeze(-1)
+        pts = o[idx] + t[idx, None] * d[idx]
+        return SurfaceHits(index=idx, t=t[idx], points=pts, normals=sdf_normals(self.sdf_fn, pts))
+
+    def material_at(self, hits: SurfaceHits) -> SurfaceMaterial:
+        return self.material_at_points(hits.points)
+
+    def material_at_points(self, points: Tensor) -> SurfaceMaterial:
+        m = self.material_fn(points)
+        return SurfaceMaterial(albedo=m.albedo.float(), specular=m.specular.float(), alpha=m.alpha.float())
+
+    def light_visibility(self, points: Tensor, normals: Tensor, light: PointLight) -> Tensor:
+        origins = points + self.options.shadow_bias * normals
+        to_light = light.position.to(origins) - origins
+        dist = to_light.norm(dim=-1)
+        dirs = to_light / dist[:, None].clamp_min(1e-12)
+        _, exit_t = ray_sphere(origins, dirs, self.options.bound)
+        far = torch.minimum(dist, exit_t)
+        hit, _ = sphere_trace(self.sdf_fn, origins, dirs, torch.zeros_like(far), far, self.options)
+        return (~hit).float()
+
+    def contains(self, point: Tensor) -> bool:
+        with torch.no_grad():
+            return bool(self.sdf_fn(point.reshape(1, 3).float()).reshape(-1)[0] < 0)
+
+
+def render_fields(sdf_fn: SdfFn, material_fn: MaterialFn, camera: Camera, light: PointLight,
+                  edit: MaterialEdit = MaterialEdit(), shadows: bool = True, ss: int = 1,
+                  options: TraceOptions = TraceOptions()) -> RelitImage:
+    """The neural path: sphere-trace ``sdf_fn``, shade with srvol's BRDF, shadow rays through the SDF."""
+    return render_scene(FieldScene(sdf_fn, material_fn, options), camera, light, edit, shadows, ss)
+
+
+# ----------------------------------------------------------------------------- asset path (mesh)
+
+@dataclass(frozen=True)
+class AssetScene:
+    """An exported asset prepared for ray casting (embree BVH built once).
+
+    vertices (V, 3), faces (F, 3), face_normals (F, 3) geometric unit normals, normals (V, 3)
+    shading normals (the asset's, else area-weighted vertex normals), uv (V, 2) or None;
+    textures as torch tensors (H, W, C) linear. ``shadow_bias`` offsets shadow rays along the
+    geometric normal (scene units).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_normals: np.ndarray
+    normals: np.ndarray
+    uv: np.ndarray | None
+    albedo: Tensor
+    specular: Tensor
+    alpha: Tensor
+    intersector: object
+    shadow_bias: float = 1e-4
+
+    @staticmethod
+    def build(asset: Asset, shadow_bias: float = 1e-4) -> "AssetScene":
+        import trimesh
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+        m = asset.mesh
+        tm = trimesh.Trimesh(vertices=np.asarray(m.vertices, np.float64), faces=np.asarray(m.faces, np.int64),
+                             process=False)
+        normals = np.asarray(m.normals, np.float64) if m.normals is not None else np.asarray(tm.vertex_normals)
+        tex = asset.textures
+        return AssetScene(vertices=np.asarray(tm.vertices), faces=np.asarray(tm.faces),
+                          face_normals=np.asarray(tm.face_normals, np.float64), normals=normals,
+                          uv=None if m.uv is None else np.asarray(m.uv, np.float64),
+                          albedo=torch.from_numpy(np.ascontiguousarray(tex.albedo[..., :3], np.float32)),
+                          specular=torch.from_numpy(np.ascontiguousarray(tex.specular[..., :1], np.float32)),
+                          alpha=torch.from_numpy(np.ascontiguousarray(tex.alpha[..., :1], np.float32)),
+                          intersector=RayMeshIntersector(tm), shadow_bias=shadow_bias)
+
+    def _first_hits(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Ray indices that hit, their triangles and distances (embree's first hit, exact plane distance)."""
+        tri = np.asarray(self.intersector.intersects_first(o, d))
+        idx = np.nonzero(tri >= 0)[0]
+        tri = tri[idx]
+        fn = self.face_normals[tri]
+        p0 = self.vertices[self.faces[tri, 0]]
+        denom = (d[idx] * fn).sum(-1)
+        t = ((p0 - o[idx]) * fn).sum(-1) / np.where(np.abs(denom) < 1e-12, 1e-12, denom)
+        return idx, tri, t
+
+    def intersect(self, rays: Rays) -> SurfaceHits:
+        o = rays.origins.detach().double().numpy()
+        d = rays.directions.detach().double().numpy()
+        idx, tri, t = self._first_hits(o, d)
+        pts = o[idx] + t[:, None] * d[idx]
+        f = self.faces[tri]
+        bary = barycentric(pts, self.vertices[f[:, 0]], self.vertices[f[:, 1]], self.vertices[f[:, 2]])
+        n = np.einsum("mk,mkc->mc", bary, self.normals[f])
+        # shading normals on the side of the geometric face the ray sees
+        fn = self.face_normals[tri]
+        front = -np.sign((fn * d[idx]).sum(-1, keepdims=True))
+        front[front == 0] = 1
+        n = np.where(((n * fn).sum(-1, keepdims=True) * front) < 0, -n, n)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True).clip(1e-12)
+        uv = None if self.uv is None else torch.from_numpy(np.einsum("mk,mkc->mc", bary, self.uv[f])).float()
+        return SurfaceHits(index=torch.from_numpy(idx), t=torch.from_numpy(t).float(),
+                           points=torch.from_numpy(pts).float(), normals=torch.from_numpy(n).float(), uv=uv)
+
+    def material_at(self, hits: SurfaceHits) -> SurfaceMaterial:
+        if hits.uv is None:
+            raise SrvolError("the asset's mesh has no UVs: its textures cannot be read")
+        return SurfaceMaterial(albedo=sample_texture(self.albedo, hits.uv),
+                               specular=sample_texture(self.specular, hits.uv),
+                               alpha=sample_texture(self.alpha, hits.uv).clamp_min(1e-3))
+
+    def light_visibility(self, points: Tensor, normals: Tensor, light: PointLight) -> Tensor:
+        p = points.detach().double().numpy()
+        n = normals.detach().double().numpy()
+        lpos = light.position.detach().double().numpy()
+        to_light = lpos - p
+        dist = np.linalg.norm(to_light, axis=-1)
+        dirs = to_light / dist[:, None].clip(1e-12)
+        # offset off the surface on the light's side (shading normals may face away near the terminator)
+        side = np.where((n * dirs).sum(-1, keepdims=True) >= 0, 1.0, -1.0)
+        origins = p + self.shadow_bias * side * n + self.shadow_bias * dirs
+        idx, _, t = self._first_hits(origins, dirs)
+        vis = np.ones(len(p), np.float32)
+        blocked = (t > 0) & (t < dist[idx] - 2 * self.shadow_bias)
+        vis[idx[blocked]] = 0.0
+        return torch.from_numpy(vis)
+
+    def contains(self, point: Tensor) -> bool:
+        """Inside when most of six axis rays first meet a back face (robust to open parts such as a ground quad)."""
+        p = np.repeat(point.detach().double().numpy().reshape(1, 3), 6, axis=0)
+        d = np.concatenate([np.eye(3), -np.eye(3)])
+        idx, tri, _ = self._first_hits(p, d)
+        back = (self.face_normals[tri] * d[idx]).sum(-1) > 0
+        return int(back.sum()) >= 4
+
+
+def render_asset(asset: Asset | AssetScene, camera: Camera, light: PointLight, edit: MaterialEdit = MaterialEdit(),
+                 shadows: bool = True, ss: int = 1) -> RelitImage:
+    """The asset path: embree ray casting, barycentric UVs and normals, bilinear textures, srvol's BRDF."""
+    scene = asset if isinstance(asset, AssetScene) else AssetScene.build(asset)
+    return render_scene(scene, camera, light, edit, shadows, ss)
+
+
+def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(M, 3) barycentric weights of points p (M, 3) in triangles (a, b, c)."""
+    v0, v1, v2 = b - a, c - a, p - a
+    d00 = (v0 * v0).sum(-1)
+    d01 = (v0 * v1).sum(-1)
+    d11 = (v1 * v1).sum(-1)
+    d20 = (v2 * v0).sum(-1)
+    d21 = (v2 * v1).sum(-1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(np.abs(den) < 1e-30, 1e-30, den)
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    return np.stack([1 - v - w, v, w], axis=-1)
