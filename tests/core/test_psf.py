@@ -1,0 +1,100 @@
+"""The PSF operator and the sub-pixel ray offsets of the three training variants."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from srvol.psf import SRMode, blur_decimate, decimation_matrix, gaussian_weights_on_grid, pixel_offsets
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.375, 0.8])
+def test_decimation_rows_sum_to_one(sigma):
+    A = decimation_matrix(10, 4, sigma)
+    assert A.shape == (10, 40)
+    np.testing.assert_allclose(A.sum(axis=1), 1.0, atol=1e-12)
+    assert (A >= 0).all()
+
+
+def test_decimation_row_is_symmetric_about_the_lr_centre():
+    # LR pixel 5 at x4 has its centre at HR coordinate 22: HR pixels 21 and 22 straddle it
+    A = decimation_matrix(12, 4, 0.375)
+    row = A[5]
+    centre = 22
+    for m in range(8):
+        assert row[centre - 1 - m] == pytest.approx(row[centre + m], abs=1e-14)
+
+
+@pytest.mark.parametrize("sigma,sr", [(0.375, 4), (0.5, 2), (1.0, 3)])
+def test_kernel_variance_is_sigma_squared_plus_box(sigma, sr):
+    # Weights are the Gaussian's mass over unit HR bins; as point masses at bin centres their variance
+    # is sigma_hr^2 + 1/12 (Sheppard's correction), sigma_hr = sigma * sr.
+    A = decimation_matrix(16, sr, sigma)
+    i = 8
+    x = np.arange(16 * sr) + 0.5
+    mean = (A[i] * x).sum()
+    assert mean == pytest.approx((i + 0.5) * sr, abs=1e-9)
+    var = (A[i] * (x - mean) ** 2).sum()
+    assert var == pytest.approx((sigma * sr) ** 2 + 1 / 12, rel=1e-3)
+
+
+def test_sigma_zero_is_the_box_of_the_two_central_hr_pixels():
+    # sigma -> 0: all mass at the LR centre, which is the edge between two HR pixels (half each)
+    A = decimation_matrix(3, 4, 0.0)
+    np.testing.assert_allclose(A[1, 5:7], [0.5, 0.5], atol=1e-9)
+
+
+def test_blur_decimate_of_a_constant_is_constant():
+    hr = np.full((24, 32, 3), 0.3, np.float32)
+    lr = blur_decimate(hr, 4, 0.375)
+    assert lr.shape == (6, 8, 3)
+    np.testing.assert_allclose(lr, 0.3, atol=1e-6)
+
+
+def test_blur_decimate_of_a_step_is_between_its_levels():
+    hr = np.zeros((16, 16), np.float32)
+    hr[:, 8:] = 1.0
+    lr = blur_decimate(hr, 4, 0.375)
+    assert lr.shape == (4, 4)
+    assert np.all(np.diff(lr, axis=1) >= 0)
+    # the outer pixels' centres sit 6 HR px = 4 sigma_hr from the step: Gaussian tail 1 - Phi(4) ~ 3e-5
+    np.testing.assert_allclose(lr[:, 0], 0.0, atol=1e-4)
+    np.testing.assert_allclose(lr[:, 3], 1.0, atol=1e-4)
+    # the two pixels either side of the step are mirror images: a + b = 1
+    np.testing.assert_allclose(lr[:, 1] + lr[:, 2], 1.0, atol=1e-6)
+
+
+def test_gaussian_offsets_have_zero_mean_and_std_sigma():
+    n, sigma = 40_000, 0.375
+    off = pixel_offsets(SRMode.GAUSSIAN, n_pixels=1000, n_samples=n // 1000, sigma_lr_px=sigma, sr=4,
+                        generator=torch.Generator().manual_seed(0)).double()
+    assert off.shape == (1000, 40, 2)
+    flat = off.reshape(-1, 2)
+    # standard errors: mean sigma / sqrt(n) = 0.0019, std sigma / sqrt(2n) = 0.0013; allow 5 of them
+    assert flat.mean(0).abs().max().item() < 5 * sigma / math.sqrt(n)
+    assert (flat.std(0) - sigma).abs().max().item() < 5 * sigma / math.sqrt(2 * n)
+
+
+def test_box_offsets_are_the_hr_pixel_centres():
+    off = pixel_offsets(SRMode.BOX, n_pixels=3, n_samples=25, sigma_lr_px=0.375, sr=4)
+    assert off.shape == (3, 16, 2)
+    c = [-0.375, -0.125, 0.125, 0.375]  # centres of 4 HR pixels across one LR pixel, from its centre
+    want = torch.tensor([[x, y] for y in c for x in c])
+    torch.testing.assert_close(off[0], want)
+    torch.testing.assert_close(off[2], want)
+
+
+def test_none_is_one_ray_through_the_centre():
+    off = pixel_offsets(SRMode.NONE, n_pixels=5, n_samples=25, sigma_lr_px=0.375, sr=4)
+    assert off.shape == (5, 1, 2)
+    assert torch.all(off == 0)
+
+
+def test_gaussian_weights_on_a_fine_grid_sum_to_one():
+    c = (torch.arange(-20, 21, dtype=torch.float64)) * 0.25
+    y, x = torch.meshgrid(c, c, indexing="ij")
+    w = gaussian_weights_on_grid(torch.stack([x, y], -1), 0.25, 0.375)
+    assert w.sum().item() == pytest.approx(1.0, abs=1e-9)
+    assert w[20, 20] == w.max()
