@@ -276,13 +276,15 @@ class AssetScene:
                              process=False)
         normals = np.asarray(m.normals, np.float64) if m.normals is not None else np.asarray(tm.vertex_normals)
         tex = asset.textures
+        intersector = RayMeshIntersector(tm)
+        intersector.intersects_first(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))  # build the BVH now
         return AssetScene(vertices=np.asarray(tm.vertices), faces=np.asarray(tm.faces),
                           face_normals=np.asarray(tm.face_normals, np.float64), normals=normals,
                           uv=None if m.uv is None else np.asarray(m.uv, np.float64),
                           albedo=torch.from_numpy(np.ascontiguousarray(tex.albedo[..., :3], np.float32)),
                           specular=torch.from_numpy(np.ascontiguousarray(tex.specular[..., :1], np.float32)),
                           alpha=torch.from_numpy(np.ascontiguousarray(tex.alpha[..., :1], np.float32)),
-                          intersector=RayMeshIntersector(tm), shadow_bias=shadow_bias)
+                          intersector=intersector, shadow_bias=shadow_bias)
 
     def _first_hits(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Ray indices that hit, their triangles and distances (embree's first hit, exact plane distance)."""
