@@ -1,0 +1,200 @@
+"""``export_fields``: fields -> asset folder (export/asset.py's contract), atomically.
+
+Stages: extract (narrow-band marching cubes) -> simplify (auto or N faces) ->
+unwrap (xatlas) -> bake (texel centres, gutters) -> write (raw EXRs and mesh
+always, then the formats asked). The report carries per-stage seconds and the
+choices made.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from srvol.data import AtomicFolder
+from srvol.errors import SrvolError
+from srvol.export.asset import ASSET_FORMAT
+from srvol.export.bake import BakeOptions, auto_texture_size, bake
+from srvol.export.extract import ExtractOptions, auto_resolution, extract_mesh, sdf_normals
+from srvol.export.simplify import SimplifyOptions, simplify
+from srvol.export.textures import specular_reference, write_textures
+from srvol.export.types import Mesh
+from srvol.export.uv import unwrap
+from srvol.images import atomic_write_text
+from srvol.types import MaterialFn, SdfFn
+
+FORMATS = ("usd", "usdc", "usdz", "gltf", "glb", "obj", "blend")
+ALL_FORMATS = ("usd", "usdz", "gltf", "glb", "obj", "blend")
+FILE_NAMES = {"usd": "model.usda", "usdc": "model.usdc", "usdz": "model.usdz", "gltf": "model.gltf",
+              "glb": "model.glb", "obj": "model.obj", "blend": "model.blend"}
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """formats: subset of FORMATS; resolution / faces / texture_size: None = auto from
+    hr_pixel_size (scene units per HR pixel at the object); normal_map: bake a tangent-space
+    normal map; gutter: dilation texels; force: replace an existing output folder."""
+
+    formats: tuple[str, ...] = ("usd", "glb")
+    resolution: int | None = None
+    faces: int | None = None
+    texture_size: int | None = None
+    normal_map: bool = False
+    hr_pixel_size: float = 0.005
+    gutter: int = 8
+    force: bool = False
+
+
+@dataclass
+class ExportReport:
+    out_dir: Path
+    resolution: int = 0
+    full_faces: int = 0
+    faces: int = 0
+    faces_auto: bool = False
+    distance_p95: float = 0.0
+    normal_mean_deg: float = 0.0
+    within_tolerance: bool = True
+    charts: int = 0
+    texture_size: int = 0
+    unfilled_fraction: float = 0.0
+    files: dict[str, str] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["out_dir"] = str(self.out_dir)
+        return d
+
+    def table(self) -> str:
+        rows = [("resolution", f"{self.resolution}^3 (narrow band)"),
+                ("faces", f"{self.faces} ({'auto' if self.faces_auto else 'asked'}; full {self.full_faces})"),
+                ("distance p95", f"{self.distance_p95:.2e} (within tolerance: {self.within_tolerance})"),
+                ("normal error", f"{self.normal_mean_deg:.2f} deg mean"),
+                ("charts", str(self.charts)), ("texture", f"{self.texture_size}^2"),
+                ("unfilled", f"{self.unfilled_fraction:.2%} of texels inside charts")]
+        rows += [(f"time {k}", f"{v:.2f} s") for k, v in self.seconds.items()]
+        rows.append(("files", ", ".join(self.files.values())))
+        w = max(len(k) for k, _ in rows)
+        return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
+
+
+class _Timer:
+    def __init__(self, report: ExportReport, name: str):
+        self.report, self.name = report, name
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+
+    def __exit__(self, *exc):
+        self.report.seconds[self.name] = time.perf_counter() - self.t0
+        return False
+
+
+def surface_area(mesh: Mesh) -> float:
+    v = mesh.vertices.astype(np.float64)
+    f = mesh.faces
+    return float(0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+
+
+def _check_formats(formats: tuple[str, ...]) -> tuple[str, ...]:
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise SrvolError(f"unknown export format {bad[0]!r} (choose from {', '.join(FORMATS)}, all)")
+    return tuple(dict.fromkeys(formats))
+
+
+def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
+                  options: ExportOptions = ExportOptions()) -> ExportReport:
+    """Write the asset folder ``out_dir`` from the two field callables; see module docstring."""
+    formats = _check_formats(options.formats)
+    out_dir = Path(out_dir)
+    report = ExportReport(out_dir=out_dir)
+    t_all = time.perf_counter()
+    with AtomicFolder(out_dir, options.force) as tmp:
+        res = options.resolution or auto_resolution(options.hr_pixel_size)
+        with _Timer(report, "extract"):
+            ext = extract_mesh(sdf_fn, ExtractOptions(resolution=res))
+        report.resolution, report.full_faces = res, len(ext.mesh.faces)
+        with _Timer(report, "simplify"):
+            simp = simplify(sdf_fn, ext.mesh, SimplifyOptions(faces=options.faces,
+                                                              hr_pixel_size=options.hr_pixel_size))
+        report.faces, report.faces_auto = simp.faces, options.faces is None
+        report.distance_p95, report.normal_mean_deg = simp.error.distance_p95, simp.error.normal_mean_deg
+        report.within_tolerance = simp.within_tolerance
+        size = options.texture_size or auto_texture_size(surface_area(simp.mesh), options.hr_pixel_size)
+        report.texture_size = size
+        with _Timer(report, "unwrap"):
+            uvr = unwrap(simp.mesh, size)
+            mesh = Mesh(vertices=uvr.mesh.vertices, faces=uvr.mesh.faces, uv=uvr.mesh.uv,
+                        normals=sdf_normals(sdf_fn, uvr.mesh.vertices).astype(np.float32))
+        report.charts = uvr.charts
+        with _Timer(report, "bake"):
+            baked = bake(sdf_fn, material_fn, mesh, BakeOptions(texture_size=size, gutter=options.gutter,
+                                                                normal_map=options.normal_map))
+        report.unfilled_fraction = baked.unfilled_fraction
+        with _Timer(report, "write"):
+            report.files = write_asset_files(tmp, mesh, baked.textures, formats)
+        report.seconds["total"] = time.perf_counter() - t_all
+        stats = report.to_json()
+        stats.pop("files")
+        stats.pop("out_dir")
+        _write_manifest(tmp, report.files, baked.textures.normal is not None, stats)
+        _make_readable(tmp)
+    return report
+
+
+def _make_readable(root: Path) -> None:
+    """Temporary files and folders are created private (0600/0700); an asset is ordinary output."""
+    root.chmod(0o755)
+    for p in root.rglob("*"):
+        p.chmod(0o755 if p.is_dir() else 0o644)
+
+
+def write_asset_files(root: Path, mesh: Mesh, textures, formats: tuple[str, ...]) -> dict[str, str]:
+    """raw/mesh.npz, raw/*.exr, textures/*.png and the asked formats under ``root``."""
+    from srvol.export.gltf import write_glb, write_gltf
+    from srvol.export.obj import write_obj
+    from srvol.export.usd import write_usd, write_usdz
+
+    (root / "raw").mkdir(parents=True, exist_ok=True)
+    np.savez(root / "raw" / "mesh.npz", vertices=mesh.vertices, faces=mesh.faces, uv=mesh.uv,
+             normals=mesh.normals)
+    tex = write_textures(root, textures)
+    files: dict[str, str] = {}
+    f0_ref = specular_reference(textures)
+    for fmt in formats:
+        path = root / FILE_NAMES[fmt]
+        if fmt in ("usd", "usdc"):
+            write_usd(path, mesh, tex)
+        elif fmt == "usdz":
+            write_usdz(path, mesh, tex)
+        elif fmt == "glb":
+            write_glb(path, mesh, root, tex, f0_ref)
+        elif fmt == "gltf":
+            write_gltf(path, mesh, root, tex, f0_ref)
+        elif fmt == "obj":
+            write_obj(path, mesh, tex)
+        elif fmt == "blend":
+            continue  # written last, from the USD, by Blender in a subprocess
+        files[fmt] = path.name
+    if "blend" in formats:
+        from srvol.export.blender import write_blend
+
+        write_blend(root, root / FILE_NAMES["blend"], f0_ref)
+        files["blend"] = FILE_NAMES["blend"]
+    return files
+
+
+def _write_manifest(root: Path, files: dict[str, str], has_normal: bool, stats: dict) -> None:
+    textures = {"albedo": "raw/albedo.exr", "specular": "raw/specular.exr", "alpha": "raw/alpha.exr",
+                "roughness": "raw/roughness.exr"}
+    if has_normal:
+        textures["normal"] = "raw/normal.exr"
+    meta = {"format": ASSET_FORMAT, "mesh": "raw/mesh.npz", "textures": textures, "files": files, "stats": stats}
+    atomic_write_text(root / "asset.json", json.dumps(meta, indent=1))
