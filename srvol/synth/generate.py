@@ -101,22 +101,30 @@ def moved_lights(camera: Camera, count: int, rng: np.random.Generator, first: in
 
 
 def gt_mesh(surface: Surface, resolution: int = 256):
-    """The GT surface as a triangle mesh (marching cubes of the analytic SDF, or the mesh itself)."""
+    """The GT surface as a triangle mesh (marching cubes of the analytic SDF, or the mesh itself).
+
+    The grid has the spacing of ``resolution`` samples across [-1, 1] but covers only the
+    surface's bounding sphere, and is evaluated one x-slab at a time (no full-size point array).
+    """
     import trimesh
     from skimage.measure import marching_cubes
 
     if isinstance(surface, MeshSurface):
         return surface.mesh
-    lin = np.linspace(-1, 1, resolution)
-    X, Y, Z = np.meshgrid(lin, lin, lin, indexing="ij")
-    pts = torch.from_numpy(np.stack([X, Y, Z], -1).reshape(-1, 3))
-    chunk = 1 << 20
-    d = torch.cat([surface.sdf(pts[s:s + chunk]) for s in range(0, len(pts), chunk)])
-    vol = d.reshape(resolution, resolution, resolution).numpy()
-    step = lin[1] - lin[0]
+    step = 2.0 / (resolution - 1)
+    half = min(surface.bound + 2 * step, 1.0)
+    lin = torch.arange(-half, half + 0.5 * step, step, dtype=torch.float64)
+    n = len(lin)
+    Y, Z = torch.meshgrid(lin, lin, indexing="ij")
+    yz = torch.stack([Y.reshape(-1), Z.reshape(-1)], -1)
+    vol = np.empty((n, n, n), dtype=np.float32)
+    for i in range(n):
+        pts = torch.cat([lin[i].expand(n * n, 1), yz], -1)
+        vol[i] = surface.sdf(pts).reshape(n, n).numpy()
     v, f, _, _ = marching_cubes(vol, level=0.0, spacing=(step,) * 3)
-    v = v - 1.0
-    return trimesh.Trimesh(vertices=v, faces=f[:, ::-1], process=True)
+    v = v + lin[0].item()
+    # skimage's default winding faces away from the negative (inside) values: outward normals
+    return trimesh.Trimesh(vertices=v, faces=f, process=True)
 
 
 def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force: bool = False,
