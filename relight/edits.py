@@ -4,7 +4,9 @@ Specs (combinable with commas, or by repeating ``--material``; applied in this o
 preset, then albedo / albedo-texture, then roughness, then specular / no-specular):
 
 * ``gold``             a metal-like gold within srvol's BRDF (see :data:`GOLD`).
-* ``no-specular``      F0 = 0: the microfacet lobe vanishes, the diffuse lobe is untouched.
+* ``no-specular``      F0 = 0: highlights vanish, the diffuse lobe is untouched. What is left of the
+  microfacet lobe is Schlick's grazing rise, F = (1 - v.h)^5 at F0 = 0 (srvol.brdf has no F90
+  term to switch it off); measured below 1 % of the original specular energy.
 * ``albedo=r,g,b``     constant linear diffuse albedo, each in [0, 1].
 * ``albedo-texture=PNG``  an sRGB PNG (decoded to linear) as diffuse albedo. Mapping: with
   surface UVs (an exported asset) the texture is laid in the asset's UVs (origin bottom-left,
