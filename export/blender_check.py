@@ -67,11 +67,11 @@ def wiring(mat) -> dict:
     level = p.inputs["Specular IOR Level"].default_value
     return {
         "material": mat.name,
-        "base_color_image": base.image.filepath if base else None,
+        "base_color_image": (base.image.filepath or base.image.name) if base else None,
         "base_color_colorspace": base.image.colorspace_settings.name if base else None,
-        "roughness_image": rough.image.filepath if rough else None,
+        "roughness_image": (rough.image.filepath or rough.image.name) if rough else None,
         "roughness_colorspace": rough.image.colorspace_settings.name if rough else None,
-        "specular_image": spec_img.image.filepath if spec_img else None,
+        "specular_image": (spec_img.image.filepath or spec_img.image.name) if spec_img else None,
         "specular_tint_scale": tint_scale,
         "ior": ior,
         "specular_ior_level": level,
@@ -80,12 +80,12 @@ def wiring(mat) -> dict:
     }
 
 
-def image_mean(node) -> float:
-    """Mean of an image node's first channel (pixels as Blender decodes them)."""
+def image_mean(node, channel: int = 0) -> float:
+    """Mean of one channel of an image node's pixels (as Blender decodes them)."""
     img = node.image
     px = list(img.pixels[:])
     c = img.channels
-    vals = px[0::c]
+    vals = px[min(channel, c - 1)::c]
     return sum(vals) / max(len(vals), 1)
 
 
@@ -175,7 +175,9 @@ def main(argv: list[str] | None = None) -> int:
         w = wiring(m)
         p = _principled(m)
         rough = _linked_image(p.inputs["Roughness"])
-        w["roughness_image_mean"] = image_mean(rough) if rough else None
+        sock = p.inputs["Roughness"]
+        channel = {"Red": 0, "Green": 1, "Blue": 2}.get(sock.links[0].from_socket.name, 0) if sock.is_linked else 0
+        w["roughness_image_mean"] = image_mean(rough, channel) if rough else None
         report["materials"].append(w)
     setup_scene(view)
     scene = bpy.context.scene
