@@ -1,6 +1,7 @@
 """Hand-built scenes for the relighting tests (shared by import: ``from relight_scenes import ...``)."""
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 
@@ -8,6 +9,7 @@ import numpy as np
 import torch
 
 from srvol.export.types import Asset, Mesh
+from srvol.images import write_exr
 from srvol.relight.synthetic import constant_textures
 from srvol.types import Camera, PointLight, SurfaceMaterial
 
@@ -65,3 +67,18 @@ def oblique_camera(width: int = 96, height: int = 72) -> Camera:
     f = 0.9 * width
     K = torch.tensor([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], dtype=torch.float64)
     return Camera.look_at([0.0, -1.9, 1.6], [0.0, 0.0, -0.3], [0, 0, 1], K, width, height)
+
+
+def write_asset_folder(root, asset) -> None:
+    """An asset folder by the contract of srvol.export.asset (what `srvol export` writes)."""
+    (root / "raw").mkdir(parents=True)
+    m, t = asset.mesh, asset.textures
+    np.savez(root / "raw" / "mesh.npz", vertices=m.vertices, faces=m.faces, uv=m.uv, normals=m.normals)
+    write_exr(root / "raw" / "albedo.exr", t.albedo)
+    write_exr(root / "raw" / "specular.exr", t.specular)
+    write_exr(root / "raw" / "alpha.exr", t.alpha)
+    write_exr(root / "raw" / "roughness.exr", np.sqrt(t.alpha))
+    (root / "asset.json").write_text(json.dumps({
+        "format": "srvol-asset/1", "mesh": "raw/mesh.npz",
+        "textures": {"albedo": "raw/albedo.exr", "specular": "raw/specular.exr", "alpha": "raw/alpha.exr",
+                     "roughness": "raw/roughness.exr"}, "files": {}, "stats": {}}))
