@@ -32,7 +32,8 @@ from srvol.errors import SrvolError
 class BlenderView:
     """A pinhole view and a point light for the check render (scene frame, +z up).
 
-    fov_deg: horizontal field of view; intensity: radiant intensity I (W/sr), grey."""
+    fov_deg: horizontal field of view; intensity: radiant intensity I (W/sr), grey; filter_width:
+    Cycles pixel filter in pixels (0.01 ~ one ray through each pixel centre, for comparisons)."""
 
     eye: tuple[float, float, float] = (0.0, -3.0, 1.0)
     target: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -42,6 +43,7 @@ class BlenderView:
     light: tuple[float, float, float] = (1.5, -2.5, 2.0)
     intensity: float = 10.0
     samples: int = 32
+    filter_width: float = 1.5
 
 
 def light_power_watts(intensity: float) -> float:

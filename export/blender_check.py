@@ -98,7 +98,8 @@ def setup_scene(view: dict):
     scene.cycles.device = "CPU"
     scene.cycles.samples = int(view["samples"])
     scene.cycles.use_denoising = False
-    scene.cycles.max_bounces = 1
+    scene.cycles.max_bounces = 0  # direct light only, as srvol's point-light shading
+    scene.cycles.filter_width = float(view.get("filter_width", 1.5))
     scene.render.resolution_x, scene.render.resolution_y = int(view["width"]), int(view["height"])
     scene.render.resolution_percentage = 100
     scene.view_settings.view_transform = "Standard"
