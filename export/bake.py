@@ -26,12 +26,12 @@ from srvol.types import MaterialFn, SdfFn
 @dataclass(frozen=True)
 class BakeOptions:
     """texture_size: square texture side in texels; gutter: dilation passes (>= 4);
-    newton_steps: projection steps onto the surface; normal_map: also bake a tangent-space
+    newton_steps: projection steps onto the surface (>= 1); normal_map: also bake a tangent-space
     normal map (SDF normal vs interpolated mesh normal); chunk: points per field query."""
 
     texture_size: int = 1024
     gutter: int = 8
-    newton_steps: int = 2
+    newton_steps: int = 1
     normal_map: bool = False
     chunk: int = 1 << 17
 
@@ -94,13 +94,17 @@ def rasterize_uv(uv: np.ndarray, faces: np.ndarray, size: int, chunk: int = 4096
     return Raster(np.concatenate(out_r), np.concatenate(out_c), np.concatenate(out_f), np.concatenate(out_b))
 
 
-def project_to_surface(sdf_fn: SdfFn, points: np.ndarray, steps: int) -> np.ndarray:
-    """Newton steps x <- x - d(x) grad / |grad|^2 towards the zero level."""
+def project_to_surface(sdf_fn: SdfFn, points: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Newton steps x <- x - d(x) grad / |grad|^2 towards the zero level.
+
+    Returns the projected points and the gradient of the last step (taken at most a step's length,
+    ~1e-3 here, before the final point: its direction is the surface normal to ~curvature x step)."""
     x = points.astype(np.float32)
-    for _ in range(steps):
+    g = np.zeros_like(x)
+    for _ in range(max(steps, 1)):
         d, g = sdf_gradient(sdf_fn, x)
         x = x - (d / np.maximum((g * g).sum(1), 1e-12))[:, None] * g
-    return x
+    return x, g
 
 
 def query_material(material_fn: MaterialFn, points: np.ndarray, chunk: int) -> np.ndarray:
@@ -177,11 +181,10 @@ def bake(sdf_fn: SdfFn, material_fn: MaterialFn, mesh: Mesh, opts: BakeOptions =
     v = mesh.vertices.astype(np.float64)
     tri = v[mesh.faces[ras.face]]
     pts = (ras.bary[:, :, None] * tri).sum(1)
-    surf = project_to_surface(sdf_fn, pts, opts.newton_steps)
+    surf, g = project_to_surface(sdf_fn, pts, opts.newton_steps)
     values = query_material(material_fn, surf, opts.chunk)
     channels = [values]
     if opts.normal_map:
-        _, g = sdf_gradient(sdf_fn, surf)
         n_field = g / np.linalg.norm(g, axis=1, keepdims=True).clip(1e-12)
         T, sign = tangent_frames(mesh)
         fv = mesh.faces[ras.face]

@@ -53,7 +53,7 @@ def light_power_watts(intensity: float) -> float:
 
 def run_blender_check(asset_dir: Path, out_png: Path, view: BlenderView = BlenderView(),
                       blend: Path | None = None, exr: Path | None = None, report: Path | None = None,
-                      source: str = "usd", timeout: float = 600) -> dict:
+                      source: str = "usd", render: bool = True, timeout: float = 600) -> dict:
     """Run the bpy check in a subprocess; returns its JSON report (wiring values)."""
     report = report or out_png.with_suffix(".json")
     cmd = [sys.executable, "-m", "srvol.export.blender_check", str(asset_dir), "--out", str(out_png),
@@ -62,6 +62,8 @@ def run_blender_check(asset_dir: Path, out_png: Path, view: BlenderView = Blende
         cmd += ["--blend", str(blend)]
     if exr is not None:
         cmd += ["--exr", str(exr)]
+    if not render:
+        cmd.append("--no-render")
     env = dict(os.environ, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "2"))
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     if proc.returncode != 0:
@@ -71,7 +73,8 @@ def run_blender_check(asset_dir: Path, out_png: Path, view: BlenderView = Blende
 
 
 def write_blend(asset_dir: Path, blend: Path, f0_ref: float) -> None:
-    """A ready .blend (the asset from its USD, fixed materials, a point light and a camera)."""
+    """A ready .blend (the asset from its USD, fixed materials, a point light and a camera); its
+    textures are referenced relative to the .blend, i.e. the asset folder's raw/ and textures/."""
     usd = next((asset_dir / n for n in ("model.usda", "model.usdc") if (asset_dir / n).is_file()), None)
     if usd is None:
         from srvol.export.textures import TextureFiles
@@ -86,7 +89,7 @@ def write_blend(asset_dir: Path, blend: Path, f0_ref: float) -> None:
                   TextureFiles(normal_png="textures/normal.png" if has_normal else None))
     tmp_png = asset_dir / ".blend_preview.png"
     try:
-        run_blender_check(asset_dir, tmp_png, BlenderView(samples=4, width=32, height=24), blend=blend,
+        run_blender_check(asset_dir, tmp_png, BlenderView(), blend=blend, render=False,
                           report=asset_dir / ".blend_report.json")
     finally:
         for p in (tmp_png, asset_dir / ".blend_report.json", asset_dir / ".blend_source.usda"):

@@ -141,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--report", type=Path, required=True)
     ap.add_argument("--source", choices=("usd", "glb"), default="usd")
     ap.add_argument("--view", default="{}", help="BlenderView fields as JSON")
+    ap.add_argument("--no-render", action="store_true", help="check and save only (for --blend)")
     args = ap.parse_args(argv)
     import bpy
 
@@ -182,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         report["materials"].append(w)
     setup_scene(view)
     scene = bpy.context.scene
-    if args.exr is not None:
+    if args.exr is not None and not args.no_render:
         scene.render.image_settings.file_format = "OPEN_EXR"
         scene.render.image_settings.color_depth = "32"
         scene.render.filepath = str(args.exr.resolve())
@@ -190,10 +191,13 @@ def main(argv: list[str] | None = None) -> int:
     scene.render.image_settings.file_format = "PNG"
     scene.render.image_settings.color_depth = "8"
     scene.render.filepath = str(args.out.resolve())
-    bpy.ops.render.render(write_still=True)
+    if not args.no_render:
+        bpy.ops.render.render(write_still=True)
     if args.blend is not None:
-        bpy.ops.file.pack_all()
-        bpy.ops.wm.save_as_mainfile(filepath=str(args.blend.resolve()), compress=True)
+        # Textures stay in the asset folder, referenced relative to the .blend saved beside them.
+        bpy.ops.wm.save_as_mainfile(filepath=str(args.blend.resolve()), relative_remap=True)
+        bpy.ops.file.make_paths_relative()
+        bpy.ops.wm.save_mainfile()
     args.report.write_text(json.dumps(report, indent=1))
     return 0
 

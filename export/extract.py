@@ -38,7 +38,8 @@ class ExtractOptions:
     """resolution: fine cells per axis over [-bound, bound] (512 = the 512^3-equivalent grid);
     block: fine cells per side of a dense marching-cubes block; coarse: cells per axis of the
     first level; margin: Lipschitz safety factor of the narrow-band test; chunk: points per
-    SDF call."""
+    SDF call; normals: also compute SDF vertex normals (the pipeline skips them: it decimates and
+    computes normals on the final vertices)."""
 
     resolution: int = 512
     bound: float = 1.0
@@ -46,6 +47,7 @@ class ExtractOptions:
     coarse: int = 16
     margin: float = 1.25
     chunk: int = 1 << 18
+    normals: bool = True
 
 
 @dataclass(frozen=True)
@@ -215,9 +217,10 @@ def extract_mesh(sdf_fn: SdfFn, opts: ExtractOptions = ExtractOptions()) -> Extr
     pos, faces = weld(pos, faces, tol=WELD_TOL_CELLS * h)
     faces, dropped = _largest_component(faces, len(pos))
     pos, faces = compact(pos, faces)
-    normals = sdf_normals(sdf_fn, pos)
-    faces, flipped = orient_outward(pos, faces, normals)
-    mesh = Mesh(vertices=pos.astype(np.float32), faces=faces, normals=normals.astype(np.float32))
+    faces, flipped = orient_outward(sdf_fn, pos, faces)
+    normals = sdf_normals(sdf_fn, pos) if opts.normals else None
+    mesh = Mesh(vertices=pos.astype(np.float32), faces=faces,
+                normals=None if normals is None else normals.astype(np.float32))
     return ExtractResult(mesh=mesh, resolution=opts.resolution, cell_size=h, sdf_evaluations=evaluations,
                          dropped_components=dropped, flipped=flipped)
 
@@ -229,10 +232,14 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True).clip(1e-20)
 
 
-def orient_outward(vertices: np.ndarray, faces: np.ndarray, vertex_normals: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Reverse all faces if most face normals disagree with the SDF normals at their corners."""
-    fn = face_normals(vertices, faces)
-    agree = (fn * vertex_normals[faces].sum(1)).sum(1)
+def orient_outward(sdf_fn: SdfFn, vertices: np.ndarray, faces: np.ndarray,
+                   samples: int = 20000) -> tuple[np.ndarray, bool]:
+    """Reverse all faces if most face normals disagree with +grad d at (up to ``samples``) face centroids."""
+    rng = np.random.default_rng(0)
+    pick = rng.choice(len(faces), min(samples, len(faces)), replace=False)
+    fn = face_normals(vertices, faces[pick])
+    _, g = sdf_gradient(sdf_fn, vertices[faces[pick]].mean(1))
+    agree = (fn * g).sum(1)
     if (agree < 0).sum() > (agree > 0).sum():
         return np.ascontiguousarray(faces[:, ::-1]), True
     return faces, False

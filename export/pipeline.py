@@ -119,7 +119,7 @@ def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
     with AtomicFolder(out_dir, options.force) as tmp:
         res = options.resolution or auto_resolution(options.hr_pixel_size)
         with _Timer(report, "extract"):
-            ext = extract_mesh(sdf_fn, ExtractOptions(resolution=res))
+            ext = extract_mesh(sdf_fn, ExtractOptions(resolution=res, normals=False))
         report.resolution, report.full_faces = res, len(ext.mesh.faces)
         with _Timer(report, "simplify"):
             simp = simplify(sdf_fn, ext.mesh, SimplifyOptions(faces=options.faces,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,7 +58,7 @@ def write_png16(path: Path, image: np.ndarray) -> None:
     img = np.clip(np.asarray(image, dtype=np.float32).reshape(image.shape[0], image.shape[1]), 0, 1)
     tmp = atomic_path(path)
     try:
-        Image.fromarray((img * 65535.0 + 0.5).astype(np.uint16)).save(tmp, format="PNG")
+        Image.fromarray((img * 65535.0 + 0.5).astype(np.uint16)).save(tmp, format="PNG", compress_level=3)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -71,18 +72,22 @@ def write_textures(root: Path, textures: TextureSet) -> TextureFiles:
     (root / "raw").mkdir(parents=True, exist_ok=True)
     (root / "textures").mkdir(parents=True, exist_ok=True)
     r = textures.roughness
-    write_exr(root / files.albedo_exr, textures.albedo)
-    write_exr(root / files.specular_exr, textures.specular)
-    write_exr(root / files.alpha_exr, textures.alpha)
-    write_exr(root / files.roughness_exr, r)
-    write_png(root / files.albedo_png, textures.albedo, srgb=True)
-    write_png16(root / files.roughness_png, r)
-    write_png16(root / files.specular_png, textures.specular)
     mr = np.concatenate([np.zeros_like(r), r, np.zeros_like(r)], -1)
-    write_png(root / files.metallic_roughness_png, mr, srgb=False)
     sc = np.repeat(textures.specular / specular_reference(textures), 3, axis=-1)
-    write_png(root / files.specular_color_png, sc, srgb=True)
+    jobs = [(write_exr, root / files.albedo_exr, textures.albedo),
+            (write_exr, root / files.specular_exr, textures.specular),
+            (write_exr, root / files.alpha_exr, textures.alpha),
+            (write_exr, root / files.roughness_exr, r),
+            (lambda p, x: write_png(p, x, srgb=True), root / files.albedo_png, textures.albedo),
+            (write_png16, root / files.roughness_png, r),
+            (write_png16, root / files.specular_png, textures.specular),
+            (lambda p, x: write_png(p, x, srgb=False), root / files.metallic_roughness_png, mr),
+            (lambda p, x: write_png(p, x, srgb=True), root / files.specular_color_png, sc)]
     if has_normal:
-        write_exr(root / files.normal_exr, textures.normal)
-        write_png(root / files.normal_png, textures.normal * 0.5 + 0.5, srgb=False)
+        jobs += [(write_exr, root / files.normal_exr, textures.normal),
+                 (lambda p, x: write_png(p, x, srgb=False), root / files.normal_png, textures.normal * 0.5 + 0.5)]
+    # zlib and OpenEXR release the GIL: writing the files in threads uses every core.
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
+        for fut in [pool.submit(fn, path, img) for fn, path, img in jobs]:
+            fut.result()
     return files
