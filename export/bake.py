@@ -4,7 +4,7 @@ Texel (row j, column i) of an (H, W) texture has its centre at
 ``u = (i + 0.5) / W``, ``v = 1 - (j + 0.5) / H`` (export/types.py: v up, row 0
 on top). Each texel centre inside a UV triangle is mapped through its
 barycentric coordinates to a 3-D point, projected onto the zero level of the
-SDF by Newton steps along the gradient (``x <- x - d g / |g|^2``), and the
+SDF by Newton steps along the interpolated mesh normal (``x <- x - d n``), and the
 material field is queried there. Gutters around the charts are then filled by
 iterative nearest-filled propagation (each pass gives an empty texel the mean
 of its filled 8-neighbours), so bilinear filtering and mipmaps never read
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from srvol.export.extract import sdf_gradient
+from srvol.export.extract import evaluate_sdf, face_normals, sdf_gradient
 from srvol.export.types import Mesh, TextureSet
 from srvol.types import MaterialFn, SdfFn
 
@@ -31,7 +31,7 @@ class BakeOptions:
 
     texture_size: int = 1024
     gutter: int = 8
-    newton_steps: int = 1
+    newton_steps: int = 2
     normal_map: bool = False
     chunk: int = 1 << 17
 
@@ -94,17 +94,18 @@ def rasterize_uv(uv: np.ndarray, faces: np.ndarray, size: int, chunk: int = 4096
     return Raster(np.concatenate(out_r), np.concatenate(out_c), np.concatenate(out_f), np.concatenate(out_b))
 
 
-def project_to_surface(sdf_fn: SdfFn, points: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """Newton steps x <- x - d(x) grad / |grad|^2 towards the zero level.
+def project_to_surface(sdf_fn: SdfFn, points: np.ndarray, normals: np.ndarray, steps: int,
+                       chunk: int = 1 << 18) -> np.ndarray:
+    """Newton steps ``x <- x - d(x) n`` along the unit mesh normal ``n`` towards the zero level.
 
-    Returns the projected points and the gradient of the last step (taken at most a step's length,
-    ~1e-3 here, before the final point: its direction is the surface normal to ~curvature x step)."""
+    With |grad d| = 1 and n close to the field normal (the decimated mesh lies within a fraction of
+    an HR pixel of the surface) this is the gradient Newton step without the gradient: forward
+    queries only, a third of the cost of autograd."""
     x = points.astype(np.float32)
-    g = np.zeros_like(x)
-    for _ in range(max(steps, 1)):
-        d, g = sdf_gradient(sdf_fn, x)
-        x = x - (d / np.maximum((g * g).sum(1), 1e-12))[:, None] * g
-    return x, g
+    n = normals.astype(np.float32)
+    for _ in range(steps):
+        x = x - evaluate_sdf(sdf_fn, x, chunk)[:, None] * n
+    return x
 
 
 def query_material(material_fn: MaterialFn, points: np.ndarray, chunk: int) -> np.ndarray:
@@ -181,15 +182,19 @@ def bake(sdf_fn: SdfFn, material_fn: MaterialFn, mesh: Mesh, opts: BakeOptions =
     v = mesh.vertices.astype(np.float64)
     tri = v[mesh.faces[ras.face]]
     pts = (ras.bary[:, :, None] * tri).sum(1)
-    surf, g = project_to_surface(sdf_fn, pts, opts.newton_steps)
+    fv = mesh.faces[ras.face]
+    if mesh.normals is not None:
+        n_mesh = (ras.bary[:, :, None] * mesh.normals[fv].astype(np.float64)).sum(1)
+        n_mesh /= np.linalg.norm(n_mesh, axis=1, keepdims=True).clip(1e-12)
+    else:
+        n_mesh = face_normals(mesh.vertices, mesh.faces)[ras.face]
+    surf = project_to_surface(sdf_fn, pts, n_mesh, opts.newton_steps, opts.chunk)
     values = query_material(material_fn, surf, opts.chunk)
     channels = [values]
     if opts.normal_map:
+        _, g = sdf_gradient(sdf_fn, surf)
         n_field = g / np.linalg.norm(g, axis=1, keepdims=True).clip(1e-12)
         T, sign = tangent_frames(mesh)
-        fv = mesh.faces[ras.face]
-        n_mesh = (ras.bary[:, :, None] * mesh.normals[fv].astype(np.float64)).sum(1)
-        n_mesh /= np.linalg.norm(n_mesh, axis=1, keepdims=True).clip(1e-12)
         t_mesh = (ras.bary[:, :, None] * T[fv]).sum(1)
         t_mesh -= (t_mesh * n_mesh).sum(1, keepdims=True) * n_mesh
         t_mesh /= np.linalg.norm(t_mesh, axis=1, keepdims=True).clip(1e-12)

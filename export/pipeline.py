@@ -122,8 +122,10 @@ def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
             ext = extract_mesh(sdf_fn, ExtractOptions(resolution=res, normals=False))
         report.resolution, report.full_faces = res, len(ext.mesh.faces)
         with _Timer(report, "simplify"):
-            simp = simplify(sdf_fn, ext.mesh, SimplifyOptions(faces=options.faces,
-                                                              hr_pixel_size=options.hr_pixel_size))
+            # A normal map carries the field's normals: decimation then answers to distance alone.
+            simp = simplify(sdf_fn, ext.mesh, SimplifyOptions(
+                faces=options.faces, hr_pixel_size=options.hr_pixel_size,
+                normal_deg=None if options.normal_map else SimplifyOptions.normal_deg))
         report.faces, report.faces_auto = simp.faces, options.faces is None
         report.distance_p95, report.normal_mean_deg = simp.error.distance_p95, simp.error.normal_mean_deg
         report.within_tolerance = simp.within_tolerance

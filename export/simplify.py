@@ -10,7 +10,8 @@ footprint ``p`` (RunInfo.hr_pixel_size):
 * distance: the 95th percentile of the first-order distance ``|d| / |grad d|``
   of the field at points sampled on the decimated mesh, <= ``distance_px * p``;
 * normals: the mean angle between face normals and the field's normals at the
-  same points, <= the full-resolution mesh's own mean angle + ``normal_deg``.
+  same points, <= the full-resolution mesh's own mean angle + ``normal_deg``
+  (None: no normal criterion -- when a normal map restores the field's normals).
 
 The reference is the field whose zero level the full-resolution mesh samples;
 measuring against it costs a few thousand field queries per candidate instead
@@ -37,7 +38,7 @@ class SimplifyOptions:
     faces: int | None = None
     hr_pixel_size: float = 0.005
     distance_px: float = 0.5
-    normal_deg: float = 2.0
+    normal_deg: float | None = 2.0
     min_faces: int = 2000
     max_faces: int = 30000
     samples: int = 20000
@@ -114,7 +115,7 @@ def mesh_error(sdf_fn: SdfFn, mesh: Mesh, samples: int = 20000) -> MeshError:
 
 def _ok(err: MeshError, ref: MeshError, opts: SimplifyOptions) -> bool:
     return (err.distance_p95 <= opts.distance_px * opts.hr_pixel_size
-            and err.normal_mean_deg <= ref.normal_mean_deg + opts.normal_deg)
+            and (opts.normal_deg is None or err.normal_mean_deg <= ref.normal_mean_deg + opts.normal_deg))
 
 
 def simplify(sdf_fn: SdfFn, mesh: Mesh, opts: SimplifyOptions = SimplifyOptions()) -> SimplifyResult:
