@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from srvol.data import camera_to_json, load_scene
@@ -238,7 +238,7 @@ numbers = st.one_of(st.sampled_from([math.nan, math.inf, -math.inf, 0, -1, 1e300
 camera_entries = st.fixed_dictionaries({}, optional={
     "K": st.one_of(st.lists(numbers, min_size=0, max_size=17), json_values),
     "W2C": st.one_of(st.lists(numbers, min_size=0, max_size=17), json_values),
-    "img_size": st.one_of(st.lists(numbers, min_size=0, max_size=3), json_values),
+    "img_size": st.one_of(st.lists(numbers, min_size=2, max_size=2), st.lists(numbers, max_size=3), json_values),
 })
 PROPERTY = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
@@ -252,6 +252,9 @@ def test_corrupted_cameras_json_gives_only_scene_errors(pristine, content):
 
 @PROPERTY
 @given(fname=st.sampled_from(["000.exr", "001.exr"]), entry=camera_entries)
+@example(fname="000.exr", entry={"img_size": [math.inf, 6]})  # int(inf) raised OverflowError once
+@example(fname="000.exr", entry={"img_size": [8.5, 6]})
+@example(fname="001.exr", entry={"K": [1e308] * 9})
 def test_corrupted_camera_entry_gives_only_scene_errors(pristine, fname, entry):
     def edit(root: Path) -> None:
         cams = json.loads((root / "cameras.json").read_text())
@@ -265,6 +268,9 @@ def test_corrupted_camera_entry_gives_only_scene_errors(pristine, fname, entry):
 @given(content=st.one_of(json_values, st.fixed_dictionaries({}, optional={
     "format": json_values, "color_space": json_values, "light": json_values, "psf": json_values,
     "sr_factor": st.one_of(numbers, json_values), "split": json_values})))
+@example(content={"sr_factor": math.inf})  # int(inf) raised OverflowError once
+@example(content={"psf": {"sigma_lr_px": math.nan}})
+@example(content={"light": {"intensity": [1, 2]}})
 def test_corrupted_scene_json_gives_only_scene_errors(pristine, content):
     load_corrupted(pristine, lambda root: (root / "scene.json").write_text(json.dumps(content)))
 
