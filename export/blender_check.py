@@ -195,6 +195,7 @@ def main(argv: list[str] | None = None) -> int:
         bpy.ops.render.render(write_still=True)
     if args.blend is not None:
         # Textures stay in the asset folder, referenced relative to the .blend saved beside them.
+        bpy.context.preferences.filepaths.save_version = 0  # no model.blend1 backup
         bpy.ops.wm.save_as_mainfile(filepath=str(args.blend.resolve()), relative_remap=True)
         bpy.ops.file.make_paths_relative()
         bpy.ops.wm.save_mainfile()

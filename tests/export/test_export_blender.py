@@ -53,3 +53,4 @@ def test_write_blend(sphere_asset, tmp_path, needs_bpy):
     write_blend(work, work / "model.blend", f0_ref=0.14)
     assert (work / "model.blend").stat().st_size > 10000
     assert sorted(p.name for p in work.iterdir() if p.name.startswith(".")) == []
+    assert not (work / "model.blend1").exists()
