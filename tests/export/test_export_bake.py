@@ -63,12 +63,16 @@ def test_gutters_dilated_at_least_four_texels():
     assert np.isfinite(tex.albedo).all()
 
 
-def test_dilate_copies_neighbour_means():
+def test_dilate_copies_nearest_filled_texel():
     img = np.zeros((1, 4, 1), np.float32)
     img[0, 0, 0] = 2.0
     filled = np.array([[True, False, False, False]])
     out, mask = dilate(img, filled, 2)
     assert out[0, :3, 0].tolist() == [2.0, 2.0, 2.0] and mask.tolist() == [[True, True, True, False]]
+    # Two charts: each gutter texel takes the nearer chart's value.
+    img = np.array([[[1.0], [0.0], [0.0], [0.0], [0.0], [5.0]]], np.float32)
+    out, _ = dilate(img, np.array([[True, False, False, False, False, True]]), 4)
+    assert out[0, :, 0].tolist() == [1.0, 1.0, 1.0, 5.0, 5.0, 5.0]
 
 
 def test_auto_texture_size_from_hr_texel_density():
