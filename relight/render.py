@@ -27,8 +27,9 @@ from srvol.psf import box_offsets
 from srvol.relight.edits import MaterialEdit, sample_texture
 from srvol.types import Camera, MaterialFn, PointLight, Rays, SdfFn, SurfaceMaterial
 
-RAY_CHUNK = 1 << 17
-"""Rays per batch in :func:`render_scene` (bounds memory: ~100 MB per batch for a grid model)."""
+RAY_CHUNK = 1 << 19
+"""Rays per batch in :func:`render_scene`: a whole 640x480 frame in one batch, so that sphere tracing
+makes few, large SDF calls (each call of a trained model has a fixed cost)."""
 
 
 @dataclass(frozen=True)
@@ -86,7 +87,13 @@ def shade_hits(scene: RelightScene, hits: SurfaceHits, rays: Rays, light: PointL
                edit: MaterialEdit, shadows: bool) -> Tensor:
     """(M, 3) radiance towards the camera at the hits of ``rays`` under ``light``."""
     material = edit.apply(scene.material_at(hits), hits.points, hits.uv)
-    visibility = scene.light_visibility(hits.points, hits.normals, light) if shadows else None
+    visibility = None
+    if shadows:  # points facing away from the light are black anyway: no shadow ray for them
+        facing = ((light.position.to(hits.points) - hits.points) * hits.normals).sum(-1) > 0
+        visibility = torch.zeros(hits.points.shape[0], dtype=hits.points.dtype)
+        idx = torch.nonzero(facing).squeeze(-1)
+        if idx.numel():
+            visibility[idx] = scene.light_visibility(hits.points[idx], hits.normals[idx], light).to(visibility)
     view_dir = -rays.directions[hits.index]
     return shade(material, hits.normals, hits.points, view_dir, light, visibility)
 
@@ -135,6 +142,12 @@ class TraceOptions:
     max_steps:  iterations before a ray is given up (a ray still within 10 eps then counts as a hit).
     eps:        a ray has hit when the SDF falls below eps.
     shadow_bias: shadow rays start this far off the surface along the normal.
+    tail_rays:  once no more than this many rays are still marching (grazing rays creeping along
+                a surface), they are finished together by dense sampling instead: every SDF
+                call of a trained model costs a fixed overhead (~0.1 s for a grid model on
+                2 cores), so a hundred steps of a few rays each would dominate the frame.
+    tail_samples: samples per remaining ray in that dense pass (then 8 bisection steps).
+    tail_after: the dense pass starts no earlier than this many sphere-tracing steps.
     """
 
     bound: float = 1.0
@@ -142,6 +155,9 @@ class TraceOptions:
     max_steps: int = 192
     eps: float = 1e-4
     shadow_bias: float = 2e-3
+    tail_rays: int = 2048
+    tail_samples: int = 64
+    tail_after: int = 48
 
 
 def ray_sphere(origins: Tensor, directions: Tensor, radius: float) -> tuple[Tensor, Tensor]:
@@ -161,15 +177,15 @@ def sphere_trace(sdf_fn: SdfFn, origins: Tensor, directions: Tensor, t_near: Ten
 
     Returns hit (N,) bool and t (N,) (the hit distance, moved onto the surface by the last SDF
     value; undefined where there is no hit). Only live rays are evaluated: the active set is
-    compacted every step.
+    compacted every step; the last ``opts.tail_rays`` are finished by :func:`first_crossing`.
     """
     n = origins.shape[0]
     hit = torch.zeros(n, dtype=torch.bool)
     t = t_far.clone()
     idx = torch.nonzero(t_near < t_far).squeeze(-1)
     oa, da, ta, fa = origins[idx], directions[idx], t_near[idx], t_far[idx]
-    for _ in range(opts.max_steps):
-        if idx.numel() == 0:
+    for step in range(opts.max_steps):
+        if idx.numel() == 0 or (step >= opts.tail_after and idx.numel() <= opts.tail_rays):
             break
         d = sdf_fn(oa + ta[:, None] * da).reshape(-1).to(ta.dtype)
         done = d < opts.eps
@@ -179,12 +195,71 @@ def sphere_trace(sdf_fn: SdfFn, origins: Tensor, directions: Tensor, t_near: Ten
         ta = ta + d * opts.step_scale
         keep = ~done & (ta < fa)
         idx, oa, da, ta, fa = idx[keep], oa[keep], da[keep], ta[keep], fa[keep]
-    if idx.numel():  # grazing rays creeping along the surface at the step limit
-        d = sdf_fn(oa + ta[:, None] * da).reshape(-1).to(ta.dtype)
-        close = d.abs() < 10 * opts.eps
-        hit[idx[close]] = True
-        t[idx[close]] = ta[close] + d[close]
+    if idx.numel():
+        tail_hit, tail_t = first_crossing(sdf_fn, oa, da, ta, fa, opts)
+        hit[idx[tail_hit]] = True
+        t[idx[tail_hit]] = tail_t[tail_hit]
     return hit, t
+
+
+def first_crossing(sdf_fn: SdfFn, origins: Tensor, directions: Tensor, t0: Tensor, t1: Tensor,
+                   opts: TraceOptions, rounds: int = 3, bisections: int = 10) -> tuple[Tensor, Tensor]:
+    """The first point of each ray in [t0, t1] where the SDF falls below eps, with few SDF calls.
+
+    Each round samples every open ray at ``opts.tail_samples`` uniform points (one call). A sample
+    below eps brackets a crossing. Between two samples further apart than their SDF values allow
+    (``(d_i + d_i+1) * step_scale < spacing``) a crossing may hide: if that interval comes before
+    the first bracket, the next round zooms into it (keeping the later bracket as a fallback).
+    Brackets are then bisected together. Rays with neither are misses.
+    """
+    n, S = origins.shape[0], opts.tail_samples
+    s = torch.linspace(0.0, 1.0, S, dtype=t0.dtype)
+    hit = torch.zeros(n, dtype=torch.bool)
+    lo_b, hi_b = t0.clone(), t0.clone()  # the bracket of each hit ray
+    fb = torch.zeros(n, dtype=torch.bool)  # a later bracket to fall back on
+    fb_lo, fb_hi = t0.clone(), t0.clone()
+    open_ = torch.arange(n)
+    lo, hi = t0.clone(), t1.clone()
+    for r in range(rounds):
+        if open_.numel() == 0:
+            break
+        ts = lo[open_, None] + (hi - lo)[open_, None] * s[None, :]
+        o, d = origins[open_], directions[open_]
+        vals = sdf_fn((o[:, None, :] + ts[..., None] * d[:, None, :]).reshape(-1, 3)).reshape(-1, S).to(ts.dtype)
+        below = vals < opts.eps
+        has_b = below.any(dim=1)
+        f = torch.where(has_b, below.to(torch.uint8).argmax(dim=1), torch.full_like(has_b, S, dtype=torch.long))
+        spacing = (hi - lo)[open_] / (S - 1)
+        cand = (vals[:, :-1] + vals[:, 1:]) * opts.step_scale < spacing[:, None]
+        cand &= torch.arange(S - 1)[None, :] < (f - 1)[:, None]  # only intervals before the bracket
+        has_c = cand.any(dim=1) & (r < rounds - 1)
+        j = cand.to(torch.uint8).argmax(dim=1)
+        take_b = has_b & ~has_c
+        fc = f.clamp(max=S - 1)
+        b_lo = ts.gather(1, (fc - 1).clamp_min(0)[:, None])[:, 0]
+        b_hi = ts.gather(1, fc[:, None])[:, 0]
+        rows = open_[take_b]
+        hit[rows] = True
+        lo_b[rows], hi_b[rows] = b_lo[take_b], b_hi[take_b]
+        keep_fb = has_b & has_c
+        fb[open_[keep_fb]] = True
+        fb_lo[open_[keep_fb]], fb_hi[open_[keep_fb]] = b_lo[keep_fb], b_hi[keep_fb]
+        zoom = open_[has_c]
+        lo[zoom] = ts[has_c].gather(1, j[has_c][:, None])[:, 0]
+        hi[zoom] = ts[has_c].gather(1, (j[has_c] + 1)[:, None])[:, 0]
+        done_miss = open_[~has_b & ~has_c]
+        use_fb = done_miss[fb[done_miss]]
+        hit[use_fb] = True
+        lo_b[use_fb], hi_b[use_fb] = fb_lo[use_fb], fb_hi[use_fb]
+        open_ = zoom
+    live = torch.nonzero(hit & (hi_b > lo_b)).squeeze(-1)
+    o, d, a, b = origins[live], directions[live], lo_b[live], hi_b[live]
+    for _ in range(bisections if live.numel() else 0):
+        mid = 0.5 * (a + b)
+        inside = sdf_fn(o + mid[:, None] * d).reshape(-1) < opts.eps
+        a, b = torch.where(inside, a, mid), torch.where(inside, mid, b)
+    hi_b[live] = b
+    return hit, hi_b
 
 
 def sdf_normals(sdf_fn: SdfFn, points: Tensor, chunk: int = RAY_CHUNK) -> Tensor:
