@@ -70,27 +70,31 @@ def rasterize_uv(uv: np.ndarray, faces: np.ndarray, size: int, chunk: int = 4096
     tri = px[faces]  # (F, 3, 2) in texel units (x right, y down)
     lo = np.floor(tri.min(1) - 0.5).astype(np.int64).clip(0, size - 1)
     hi = np.ceil(tri.max(1) - 0.5).astype(np.int64).clip(0, size - 1)
+    # Barycentrics as affine functions of the texel centre: beta = ax x + ay y + a0 (same for gamma).
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    den = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    den = np.where(np.abs(den) < 1e-12, 1e-12, den)
+    beta_c = np.stack([(c[:, 1] - a[:, 1]), -(c[:, 0] - a[:, 0])], -1) / den[:, None]
+    gamma_c = np.stack([-(b[:, 1] - a[:, 1]), (b[:, 0] - a[:, 0])], -1) / den[:, None]
     out_r, out_c, out_f, out_b = [], [], [], []
+    eps = -1e-6
     for s in range(0, len(faces), chunk):
-        t, l, h = tri[s:s + chunk], lo[s:s + chunk], hi[s:s + chunk]
+        l, h = lo[s:s + chunk], hi[s:s + chunk]
         w = h[:, 0] - l[:, 0] + 1
         n = w * (h[:, 1] - l[:, 1] + 1)
-        fid = np.repeat(np.arange(len(t)), n)
+        fid = np.repeat(np.arange(s, s + len(l)), n)
         k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-        col = l[fid, 0] + k % w[fid]
-        row = l[fid, 1] + k // w[fid]
-        p = np.stack([col + 0.5, row + 0.5], -1)
-        a, b, c = t[fid, 0], t[fid, 1], t[fid, 2]
-        v0, v1, v2 = b - a, c - a, p - a
-        den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-        den = np.where(np.abs(den) < 1e-12, 1e-12, den)
-        beta = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
-        gamma = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-        alpha = 1.0 - beta - gamma
-        eps = -1e-6
-        inside = (alpha >= eps) & (beta >= eps) & (gamma >= eps)
-        out_r.append(row[inside]); out_c.append(col[inside]); out_f.append(fid[inside] + s)
-        out_b.append(np.stack([alpha, beta, gamma], -1)[inside])
+        wf = np.repeat(w, n)
+        col = np.repeat(l[:, 0], n) + k % wf
+        row = np.repeat(l[:, 1], n) + k // wf
+        dx = col + 0.5 - a[fid, 0]
+        dy = row + 0.5 - a[fid, 1]
+        beta = beta_c[fid, 0] * dx + beta_c[fid, 1] * dy
+        gamma = gamma_c[fid, 0] * dx + gamma_c[fid, 1] * dy
+        inside = (beta >= eps) & (gamma >= eps) & (beta + gamma <= 1.0 - eps)
+        beta, gamma = beta[inside], gamma[inside]
+        out_r.append(row[inside]); out_c.append(col[inside]); out_f.append(fid[inside])
+        out_b.append(np.stack([1.0 - beta - gamma, beta, gamma], -1))
     return Raster(np.concatenate(out_r), np.concatenate(out_c), np.concatenate(out_f), np.concatenate(out_b))
 
 
