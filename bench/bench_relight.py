@@ -202,11 +202,12 @@ def trained_rows(run_dir: Path) -> tuple[list[AccuracyRow], list[TimingRow]]:
                        ssim=float(np.mean([s.ssim for s in comp.scores])),
                        psnr_min=float(min(s.psnr for s in comp.scores)))]
     write_comparison_sheet(RESULTS / "relight_sheet_trained.png", comp, f"trained run {Path(run_dir).name}")
-    cam = default_camera(640, 480)
+    counter = CountingSdf(src.scene.sdf_fn)
     t0 = time.perf_counter()
-    render_scene(src.scene, cam, TIMING_LIGHT, shadows=True)
-    timing = [TimingRow(what="neural path, trained model, 640x480 + shadows",
-                        seconds=time.perf_counter() - t0, target_s=30.0)]
+    render_scene(replace(src.scene, sdf_fn=counter), default_camera(640, 480), TIMING_LIGHT, shadows=True)
+    timing = [TimingRow(what="neural path, trained model, 640x480 + shadows", seconds=time.perf_counter() - t0,
+                        target_s=30.0, sdf_points=counter.points,
+                        modelled_grid_s=counter.points / GRID_MODEL_POINTS_PER_S)]
     return acc, timing
 
 

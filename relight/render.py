@@ -84,9 +84,11 @@ class RelitImage:
 # ----------------------------------------------------------------------------- image formation
 
 def shade_hits(scene: RelightScene, hits: SurfaceHits, rays: Rays, light: PointLight,
-               edit: MaterialEdit, shadows: bool) -> Tensor:
-    """(M, 3) radiance towards the camera at the hits of ``rays`` under ``light``."""
-    material = edit.apply(scene.material_at(hits), hits.points, hits.uv)
+               edit: MaterialEdit | None, shadows: bool) -> Tensor:
+    """(M, 3) radiance towards the camera at the hits of ``rays`` under ``light`` (``edit`` None = as is)."""
+    material = scene.material_at(hits)
+    if edit is not None:
+        material = edit.apply(material, hits.points, hits.uv)
     visibility = None
     if shadows:  # points facing away from the light are black anyway: no shadow ray for them
         facing = ((light.position.to(hits.points) - hits.points) * hits.normals).sum(-1) > 0
@@ -98,9 +100,12 @@ def shade_hits(scene: RelightScene, hits: SurfaceHits, rays: Rays, light: PointL
     return shade(material, hits.normals, hits.points, view_dir, light, visibility)
 
 
-def render_scene(scene: RelightScene, camera: Camera, light: PointLight, edit: MaterialEdit = MaterialEdit(),
+def render_scene(scene: RelightScene, camera: Camera, light: PointLight, edit: MaterialEdit | None = None,
                  shadows: bool = True, ss: int = 1, chunk: int = RAY_CHUNK) -> RelitImage:
-    """Render ``camera``'s image of ``scene`` under ``light``, each pixel the mean of ss x ss rays."""
+    """Render ``camera``'s image of ``scene`` under ``light``, each pixel the mean of ss x ss rays.
+
+    ``edit`` None renders the material as it is; ``chunk`` rays are traced per batch.
+    """
     cam = camera.to("cpu", torch.float32)
     lit = light.to("cpu", torch.float32)
     H, W = cam.height, cam.width
@@ -312,7 +317,7 @@ class FieldScene:
 
 
 def render_fields(sdf_fn: SdfFn, material_fn: MaterialFn, camera: Camera, light: PointLight,
-                  edit: MaterialEdit = MaterialEdit(), shadows: bool = True, ss: int = 1,
+                  edit: MaterialEdit | None = None, shadows: bool = True, ss: int = 1,
                   options: TraceOptions = TraceOptions()) -> RelitImage:
     """The neural path: sphere-trace ``sdf_fn``, shade with srvol's BRDF, shadow rays through the SDF."""
     return render_scene(FieldScene(sdf_fn, material_fn, options), camera, light, edit, shadows, ss)
@@ -422,7 +427,7 @@ class AssetScene:
         return int(back.sum()) >= 4
 
 
-def render_asset(asset: Asset | AssetScene, camera: Camera, light: PointLight, edit: MaterialEdit = MaterialEdit(),
+def render_asset(asset: Asset | AssetScene, camera: Camera, light: PointLight, edit: MaterialEdit | None = None,
                  shadows: bool = True, ss: int = 1) -> RelitImage:
     """The asset path: embree ray casting, barycentric UVs and normals, bilinear textures, srvol's BRDF."""
     scene = asset if isinstance(asset, AssetScene) else AssetScene.build(asset)

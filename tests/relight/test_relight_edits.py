@@ -123,3 +123,17 @@ def test_no_specular_leaves_the_shadowed_lambert_image(sphere_on_plane):
     specular_after = (ours - lambert).sum()
     assert specular_before > 0.02 * full.rgb.sum(), "the original has a visible specular part"
     assert abs(specular_after) < 0.01 * specular_before
+
+
+def test_no_edit_and_the_identity_edit_render_alike(sphere):
+    from srvol.relight.render import render_fields
+    from srvol.relight.sources import default_camera
+    from srvol.types import PointLight
+
+    sdf, material = sphere
+    cam = default_camera(24, 18)
+    light = PointLight.make([1.0, -1.0, 1.0], 10.0)
+    a = render_fields(sdf, material, cam, light, None).rgb
+    b = render_fields(sdf, material, cam, light, MaterialEdit()).rgb
+    np.testing.assert_array_equal(a, b)
+    assert a.max() > 0.05
