@@ -13,7 +13,7 @@ rays on a regular sub-pixel grid (as the ground-truth renderer of :mod:`srvol.sy
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -332,7 +332,8 @@ class AssetScene:
     vertices (V, 3), faces (F, 3), face_normals (F, 3) geometric unit normals, normals (V, 3)
     shading normals (the asset's, else area-weighted vertex normals), uv (V, 2) or None;
     textures as torch tensors (H, W, C) linear. ``shadow_bias`` offsets shadow rays along the
-    geometric normal (scene units).
+    geometric normal (scene units). With a tangent-space normal map (TextureSet.normal), shading
+    normals are perturbed in the exporter's tangent frames (``tangents`` (V, 3), ``tangent_signs`` (V,)).
     """
 
     vertices: np.ndarray
@@ -345,6 +346,9 @@ class AssetScene:
     alpha: Tensor
     intersector: object
     shadow_bias: float = 1e-4
+    normal_map: Tensor | None = None
+    tangents: np.ndarray | None = None
+    tangent_signs: np.ndarray | None = None
 
     @staticmethod
     def build(asset: Asset, shadow_bias: float = 1e-4) -> "AssetScene":
@@ -356,6 +360,12 @@ class AssetScene:
                              process=False)
         normals = np.asarray(m.normals, np.float64) if m.normals is not None else np.asarray(tm.vertex_normals)
         tex = asset.textures
+        normal_map = tangents = signs = None
+        if tex.normal is not None and m.uv is not None:
+            from srvol.export.bake import tangent_frames  # the exporter's tangent convention, shared
+
+            tangents, signs = tangent_frames(replace(m, normals=normals.astype(np.float32)))
+            normal_map = torch.from_numpy(np.ascontiguousarray(tex.normal[..., :3], np.float32))
         intersector = RayMeshIntersector(tm)
         intersector.intersects_first(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))  # build the BVH now
         return AssetScene(vertices=np.asarray(tm.vertices), faces=np.asarray(tm.faces),
@@ -364,7 +374,8 @@ class AssetScene:
                           albedo=torch.from_numpy(np.ascontiguousarray(tex.albedo[..., :3], np.float32)),
                           specular=torch.from_numpy(np.ascontiguousarray(tex.specular[..., :1], np.float32)),
                           alpha=torch.from_numpy(np.ascontiguousarray(tex.alpha[..., :1], np.float32)),
-                          intersector=intersector, shadow_bias=shadow_bias)
+                          intersector=intersector, shadow_bias=shadow_bias, normal_map=normal_map,
+                          tangents=tangents, tangent_signs=signs)
 
     def _first_hits(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Ray indices that hit, their triangles and distances (embree's first hit, exact plane distance)."""
@@ -385,15 +396,30 @@ class AssetScene:
         f = self.faces[tri]
         bary = barycentric(pts, self.vertices[f[:, 0]], self.vertices[f[:, 1]], self.vertices[f[:, 2]])
         n = np.einsum("mk,mkc->mc", bary, self.normals[f])
+        uv = None if self.uv is None else np.einsum("mk,mkc->mc", bary, self.uv[f])
+        if self.normal_map is not None and len(idx):
+            n = self._apply_normal_map(n, bary, f, uv)
         # shading normals on the side of the geometric face the ray sees
         fn = self.face_normals[tri]
         front = -np.sign((fn * d[idx]).sum(-1, keepdims=True))
         front[front == 0] = 1
         n = np.where(((n * fn).sum(-1, keepdims=True) * front) < 0, -n, n)
         n /= np.linalg.norm(n, axis=-1, keepdims=True).clip(1e-12)
-        uv = None if self.uv is None else torch.from_numpy(np.einsum("mk,mkc->mc", bary, self.uv[f])).float()
+        uv = None if uv is None else torch.from_numpy(uv).float()
         return SurfaceHits(index=torch.from_numpy(idx), t=torch.from_numpy(t).float(),
                            points=torch.from_numpy(pts).float(), normals=torch.from_numpy(n).float(), uv=uv)
+
+    def _apply_normal_map(self, n: np.ndarray, bary: np.ndarray, f: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Perturb interpolated normals by the tangent-space normal map, in the frame the exporter
+        baked it in (``srvol.export.bake``: T along +u orthogonalised against n, B = sign * n x T)."""
+        n = n / np.linalg.norm(n, axis=-1, keepdims=True).clip(1e-12)
+        t = np.einsum("mk,mkc->mc", bary, self.tangents[f])
+        t -= (t * n).sum(-1, keepdims=True) * n
+        t /= np.linalg.norm(t, axis=-1, keepdims=True).clip(1e-12)
+        b = np.cross(n, t) * self.tangent_signs[f[:, 0]][:, None]
+        nt = sample_texture(self.normal_map, torch.from_numpy(uv).float()).double().numpy()
+        nt /= np.linalg.norm(nt, axis=-1, keepdims=True).clip(1e-12)
+        return nt[:, :1] * t + nt[:, 1:2] * b + nt[:, 2:3] * n
 
     def material_at(self, hits: SurfaceHits) -> SurfaceMaterial:
         if hits.uv is None:

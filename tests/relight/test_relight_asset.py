@@ -58,3 +58,26 @@ def test_asset_read_from_its_folder_renders_as_in_memory(sphere, tmp_path):
     b = render_asset(AssetScene.build(load_asset(tmp_path / "asset")), cam, light).rgb
     np.testing.assert_allclose(a, b, atol=1e-6)
     assert a.max() > 0.1
+
+
+def test_tangent_space_normal_map_tilts_the_shading_normal():
+    """A ground quad with UVs u = (x + 1) / 2, v = (y + 1) / 2: tangent +x, bitangent +y, normal +z.
+    A constant map (sin 30, 0, cos 30) turns the shading normal to (0.5, 0, 0.866) in the world."""
+    from srvol.export.types import Asset, Mesh, TextureSet
+    from srvol.relight.synthetic import constant_textures
+
+    verts = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
+    mesh = Mesh(vertices=verts, faces=np.array([[0, 1, 2], [0, 2, 3]], np.int32), uv=(verts[:, :2] + 1) / 2,
+                normals=np.tile(np.float32([0, 0, 1]), (4, 1)))
+    flat = constant_textures((0.5, 0.5, 0.5), 0.04, 0.25)
+    tilt = np.broadcast_to(np.float32([0.5, 0.0, np.sqrt(3) / 2]), (4, 4, 3)).copy()
+    textures = TextureSet(albedo=flat.albedo, specular=flat.specular, alpha=flat.alpha, normal=tilt)
+    K = torch.tensor([[20.0, 0, 8.5], [0, 20.0, 8.5], [0, 0, 1]], dtype=torch.float64)
+    cam = Camera.look_at([0.0, -0.01, 2.0], [0, 0, 0], [0, 1, 0], K, 17, 17)
+    light = PointLight.make([0.0, 0.0, 2.0], 10.0)
+    mapped = render_asset(Asset(mesh=mesh, textures=textures), cam, light, shadows=False)
+    plain = render_asset(Asset(mesh=mesh, textures=flat), cam, light, shadows=False)
+    np.testing.assert_allclose(mapped.normal[8, 8], [0.5, 0.0, np.sqrt(3) / 2], atol=1e-5)
+    np.testing.assert_allclose(plain.normal[8, 8], [0.0, 0.0, 1.0], atol=1e-6)
+    # Lambert part scales with n.l: cos 30 = 0.866 of the untilted diffuse (plus a changed highlight)
+    assert mapped.rgb[8, 8, 0] < plain.rgb[8, 8, 0]
