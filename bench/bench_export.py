@@ -86,9 +86,7 @@ def seam_error(mesh: Mesh, tex: TextureSet, material_fn, faces: np.ndarray, n: i
 def camera_of(view: BlenderView) -> Camera:
     fx = 0.5 * view.width / math.tan(math.radians(view.fov_deg) / 2)
     K = torch.tensor([[fx, 0, view.width / 2], [0, fx, view.height / 2], [0, 0, 1]], dtype=torch.float64)
-    # Camera.look_at(up=(0, 0, 1)) as of this commit yields a camera rolled by 180 degrees (+z projects
-    # downwards, +x to the left); (0, 0, -1) gives Blender's upright, unmirrored view.
-    return Camera.look_at(view.eye, view.target, (0.0, 0.0, -1.0), K, view.width, view.height)
+    return Camera.look_at(view.eye, view.target, (0.0, 0.0, 1.0), K, view.width, view.height)
 
 
 def render_asset(asset_dir: Path, view: BlenderView) -> np.ndarray:

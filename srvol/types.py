@@ -110,7 +110,7 @@ class Camera:
         z = torch.as_tensor(target, dtype=torch.float64) - eye_t
         z = z / z.norm()
         up_t = torch.as_tensor(up, dtype=torch.float64)
-        x = torch.linalg.cross(z, -up_t)
+        x = torch.linalg.cross(z, up_t)  # image right; then y = z x x points down, away from ``up``
         if x.norm() < 1e-8:  # looking along up: pick any perpendicular
             x = torch.linalg.cross(z, torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
         x = x / x.norm()
@@ -144,7 +144,11 @@ class Rays:
 
 @dataclass(frozen=True)
 class PointLight:
-    """An isotropic point light: position (3,) in the scene frame, radiant intensity (3,) RGB."""
+    """An isotropic point light: position (3,) in the scene frame, radiant intensity (3,) RGB.
+
+    ``position`` may also be (N, 3), one light per shaded point: a training batch
+    mixes rays of several views, each lit by its own camera's flash.
+    """
 
     position: Tensor
     intensity: Tensor
