@@ -132,6 +132,7 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
     """Write built-in scene ``name`` into ``out`` (atomically) and return its path."""
     opts.validate()
     spec = get_scene(name)
+    folder = AtomicFolder(out, force=force)  # refuses an existing --out before any work
     torch.manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)
     surface = spec.make_surface()
@@ -142,7 +143,7 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
     info = SceneInfo(color_space="linear", light_intensity=(LIGHT_INTENSITY,) * 3, psf_sigma_lr_px=opts.psf_sigma,
                      sr_factor=opts.sr, train=tuple(names_train), test=tuple(names_test))
     t0 = time.time()
-    with AtomicFolder(out, force=force) as tmp:
+    with folder as tmp:
         views: list[View] = []
         hr_cams = {}
         jobs = list(zip(names_train + names_test, train_cams + test_cams))
