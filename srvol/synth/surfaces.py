@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from srvol.render import ray_sphere
 from srvol.types import MaterialFn, Rays, SdfFn
 
 
@@ -24,17 +25,6 @@ class Hit:
     t: Tensor
     points: Tensor
     normals: Tensor
-
-
-def ray_sphere(rays: Rays, radius: float) -> tuple[Tensor, Tensor]:
-    """Entry and exit distances of rays through the origin-centred sphere; entry > exit on a miss."""
-    b = (rays.origins * rays.directions).sum(-1)
-    c = (rays.origins * rays.origins).sum(-1) - radius * radius
-    disc = b * b - c
-    s = disc.clamp_min(0).sqrt()
-    near = torch.where(disc > 0, (-b - s).clamp_min(0.0), torch.full_like(b, 1.0))
-    far = torch.where(disc > 0, -b + s, torch.zeros_like(b))
-    return near, far
 
 
 def sdf_normals(sdf: SdfFn, x: Tensor) -> Tensor:

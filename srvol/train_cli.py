@@ -1,0 +1,130 @@
+"""``srvol train``: argument parsing and the run folder; the loop is srvol.train."""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from srvol.errors import SrvolError
+
+PRESETS = ("auto", "fast", "paper")
+SR_MODES = ("gaussian", "box", "none")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "train", help="learn SDF + BRDF from a scene (SuperRVol)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Learn a neural SDF and BRDF from LR flash photos by volume rendering with the "
+                    "camera's Gaussian PSF (super-resolution), then freeze the geometry and refine the BRDF.\n\n"
+                    "presets:\n"
+                    "  auto   capacity derived from the scene (HR pixel footprint, PSF, --time-budget); "
+                    "printed with reasons\n"
+                    "  fast   CPU-first: dense SDF grids + hash-grid material, few gradient samples per ray\n"
+                    "  paper  the paper's MLPs, 98 samples per ray, 25 PSF rays, its batches and learning "
+                    "rates (a GPU recipe)")
+    p.add_argument("scene", type=Path, help="scene folder (DESIGN.md section 4)")
+    p.add_argument("--out", type=Path, required=True, help="run folder to write")
+    p.add_argument("--preset", choices=PRESETS, default="auto", help="model/training recipe (default auto)")
+    p.add_argument("--sr", choices=SR_MODES, default="gaussian",
+                   help="PSF model: gaussian (SuperRVol), box (Vol-SR, d x d HR grid), none (one ray per pixel)")
+    p.add_argument("--psf-samples", type=int, help="rays per LR pixel for --sr gaussian (default: by preset)")
+    p.add_argument("--time-budget", type=float, default=600.0,
+                   help="wall-clock seconds for both stages (default 600; ignored with --iters)")
+    p.add_argument("--iters", type=int, help="total iterations of both stages instead of a time budget")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="device (default cpu)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--force", action="store_true", help="replace an existing run folder")
+    p.add_argument("--checkpoint-every", type=int, help="iterations between checkpoints (default 200)")
+    p.add_argument("--snapshots", type=int, default=0,
+                   help="save the fields N times evenly over training (RUN/snapshots/, for quality-vs-time charts)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_train)
+
+
+def build_config(scene, args):
+    from srvol.train import auto_config, fast_config, paper_config
+
+    if args.preset == "paper":
+        cfg = paper_config(sr=args.sr)
+    elif args.preset == "fast":
+        cfg = fast_config(sr=args.sr)
+    else:
+        cfg = auto_config(scene, args.sr, args.time_budget)
+    changes = {"device": args.device, "seed": args.seed, "time_budget": args.time_budget,
+               "snapshots": max(0, args.snapshots)}
+    if args.iters is not None:
+        if args.iters < 1:
+            raise SrvolError(f"--iters {args.iters}: must be >= 1")
+        changes["iters"] = args.iters
+    elif args.preset == "paper":
+        changes["iters"] = 0  # the paper's iteration count is a GPU schedule; a budget bounds it here
+    if args.psf_samples is not None:
+        if args.psf_samples < 1:
+            raise SrvolError(f"--psf-samples {args.psf_samples}: must be >= 1")
+        changes["psf_samples"] = args.psf_samples
+    if args.sr == "none":
+        changes["psf_samples"] = 1
+    if args.checkpoint_every is not None:
+        changes["checkpoint_every"] = max(1, args.checkpoint_every)
+    if args.time_budget <= 0 and args.iters is None:
+        raise SrvolError("--time-budget must be > 0 (or give --iters)")
+    return replace(cfg, **changes)
+
+
+def run_train(args) -> int:
+    from srvol.checkpoint import CONFIG_VERSION, read_config
+    from srvol.data import load_scene
+    from srvol.train import TrainConfig, hr_pixel_size, train
+
+    t0 = time.time()
+    if args.device == "cuda" and not torch.cuda.is_available():
+        raise SrvolError("--device cuda: no CUDA device available")
+    scene = load_scene(args.scene)
+    run = args.out
+    if args.resume:
+        cfg = TrainConfig.from_json(read_config(run)["train"])
+    else:
+        if run.exists() and any(run.iterdir()) and not args.force:
+            raise SrvolError(f"{run}: already exists (use --resume to continue or --force to replace it)")
+        if run.exists() and args.force:
+            import shutil
+
+            shutil.rmtree(run)
+        cfg = build_config(scene, args)
+        run.mkdir(parents=True, exist_ok=True)
+        from srvol.images import atomic_write_text
+
+        config = {"version": CONFIG_VERSION, "train": cfg.to_json(),
+                  "scene": {"path": str(Path(args.scene).resolve()), "sr_factor": scene.info.sr_factor,
+                            "psf_sigma_lr_px": scene.info.psf_sigma_lr_px,
+                            "hr_pixel_size": hr_pixel_size(scene),
+                            "light_intensity": list(scene.info.light_intensity) if scene.info.light_intensity else None}}
+        atomic_write_text(run / "config.json", json.dumps(config, indent=1))
+    from srvol.fields import SceneFields
+
+    n_params = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
+    print(f"preset {cfg.preset}, sr {cfg.sr}, {cfg.psf_samples} rays per LR pixel, "
+          f"{cfg.sampler.n_coarse} locating + {cfg.sampler.gradient_samples} gradient samples per ray, "
+          f"{n_params / 1e6:.2f} M parameters")
+    print(f"  {cfg.fields.parameter_summary()}")
+    for r in cfg.reasons:
+        print(f"  - {r}")
+    if cfg.iters == 0:
+        # The budget bounds the whole command: setup so far and the final save come out of it.
+        cfg = replace(cfg, time_budget=max(1.0, cfg.time_budget - (time.time() - t0) - 3.0))
+    summary = train(scene, cfg, run, resume=args.resume, progress=not args.quiet)
+    from srvol.images import atomic_write_text
+
+    atomic_write_text(run / "train_summary.json", json.dumps(
+        {"iterations": summary.iterations, "train_seconds": round(summary.train_seconds, 2),
+         "command_seconds": round(time.time() - t0, 2), "final_train_psnr": summary.final_psnr,
+         "rollbacks": summary.rollbacks, "parameters": n_params}, indent=1))
+    print(f"trained {summary.iterations} iterations in {summary.train_seconds:.0f} s "
+          f"(train PSNR {summary.final_psnr:.2f} dB) -> {run}")
+    return 0
