@@ -32,7 +32,7 @@ def _run(cmd: list[str]) -> tuple[float, float]:
     _, status, usage = os.wait4(p.pid, 0)
     p.returncode = os.waitstatus_to_exitcode(status)
     if p.returncode != 0:
-        raise SystemExit(f"command failed ({p.returncode}): {' '.join(cmd)}")
+        raise RuntimeError(f"command failed ({p.returncode}): {' '.join(cmd)}")
     return time.time() - t0, usage.ru_maxrss / 2 ** 20
 
 
@@ -73,8 +73,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", default="bumpy")
     ap.add_argument("--budget", type=float, default=600.0)
     ap.add_argument("--variants", default="auto:gaussian,auto:none,auto:box,paper:gaussian")
-    ap.add_argument("--eval-views", type=int, default=4, help="held-out views scored per run")
-    ap.add_argument("--snapshots", type=int, default=4)
+    ap.add_argument("--eval-views", type=int, default=3, help="held-out views scored per run")
+    ap.add_argument("--snapshots", type=int, default=3)
     args = ap.parse_args(argv)
     scene = ensure_scene(args.scene)
     from srvol.data import load_scene
@@ -86,9 +86,15 @@ def main(argv=None) -> int:
         run = WORK / "runs" / f"{args.scene}_{preset}_{sr}_{int(args.budget)}s"
         train_cmd = ["srvol", "train", str(scene), "--out", str(run), "--preset", preset, "--sr", sr,
                      "--time-budget", str(args.budget), "--snapshots", str(args.snapshots), "--quiet", "--force"]
-        wall, rss = _run([sys.executable, "-m", *(["srvol"] + train_cmd[1:])])
         eval_cmd = ["srvol", "eval", str(run), "--views", ",".join(test_views)]
-        _run([sys.executable, "-m", *(["srvol"] + eval_cmd[1:])])
+        try:
+            wall, rss = _run([sys.executable, "-m", *(["srvol"] + train_cmd[1:])])
+            _run([sys.executable, "-m", *(["srvol"] + eval_cmd[1:])])
+        except RuntimeError as e:  # a variant that fails (e.g. collapses) is a result too
+            rows.append({"scene": args.scene, "preset": preset, "sr": sr, "error": str(e), "curve": [],
+                         "peak_rss_gib": float("nan"), "command": " ".join(train_cmd)})
+            print(f"{variant}: {e}", flush=True)
+            continue
         m = json.loads((run / "metrics.json").read_text())
         curve = snapshot_curve(run, scene, test_views[0])
         row = {"scene": args.scene, "preset": preset, "sr": sr, "command_seconds": round(wall, 1),
@@ -114,12 +120,15 @@ def write_results(rows: list[dict], args) -> None:
 
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "train_table.json").write_text(json.dumps(rows, indent=1))
-    ref = next((r for r in rows if r["sr"] == "none" and r["preset"] == "auto"), None)
+    ref = next((r for r in rows if r["sr"] == "none" and r["preset"] == "auto" and "error" not in r), None)
     lines = [f"# Training: {args.scene}, budget {args.budget:.0f} s per run (2-core CPU)", "",
              "| preset | sr | HR PSNR | SSIM | masked PSNR | LR PSNR | normal MAE (deg) | albedo PSNR | relit PSNR | "
              "Chamfer | iterations | train s | peak RSS GiB | vs noSR |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['preset']} | {r['sr']} | failed: {r['error']} |")
+            continue
         d = f"{r['psnr_hr'] - ref['psnr_hr']:+.2f} dB" if ref else ""
         lines.append("| {preset} | {sr} | {p:.2f} | {s:.3f} | {pm:.2f} | {pl:.2f} | {n:.2f} | {a:.2f} | {rp} | {c:.4f} | "
                      "{it} | {t:.0f} | {m:.2f} | {d} |".format(

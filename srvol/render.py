@@ -99,8 +99,36 @@ def _stratified(near: Tensor, far: Tensor, n: int, jitter: bool) -> Tensor:
     return near[:, None] + (far - near)[:, None] * (steps + off) / n
 
 
-def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitter: bool) -> tuple[Tensor, Tensor, Tensor]:
-    """Sorted gradient-carrying sample distances (N, S), the segment end ``far`` and a hit-the-bound mask."""
+@dataclass(frozen=True)
+class RaySamples:
+    """Sorted gradient-carrying distances t (N, S), segment ends ``far`` (N,), rays that meet the
+    bounding sphere ``inside`` (N,), and the opacity the locating pass saw (N,)."""
+
+    t: Tensor
+    far: Tensor
+    inside: Tensor
+    coarse_opacity: Tensor
+
+
+def first_crossing(t: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
+    """Distance of the first outside-to-inside sign change of d along each ray (linear
+    interpolation between the bracketing samples) and whether there is one."""
+    sign_change = (d[:, :-1] > 0) & (d[:, 1:] <= 0)
+    has = sign_change.any(-1)
+    k = torch.argmax(sign_change.int(), dim=-1)[:, None]
+    t0, t1 = t.gather(1, k)[:, 0], t.gather(1, k + 1)[:, 0]
+    d0, d1 = d.gather(1, k)[:, 0], d.gather(1, k + 1)[:, 0]
+    root = t0 + (t1 - t0) * d0 / (d0 - d1).clamp_min(1e-9)
+    return root, has
+
+
+def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitter: bool) -> RaySamples:
+    """Locate the surface without gradients, then place the gradient-carrying samples.
+
+    Rays that cross the zero level get their importance samples spread over +-4 beta around the
+    first crossing (where VolSDF's weight lives); others draw them from the locating pass's
+    weights. ``n_uniform`` stratified samples cover the whole segment (empty space, floaters).
+    """
     near, far = ray_sphere(rays, cfg.bound)
     inside = far > near
     far = torch.where(inside, far, near + 1e-3)
@@ -108,19 +136,24 @@ def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitte
         tc = _stratified(near, far, cfg.n_coarse, jitter)
         d = fields.sdf(rays.at(tc).reshape(-1, 3)).reshape(tc.shape)
         deltas = torch.cat([tc[:, 1:] - tc[:, :-1], (far - tc[:, -1])[:, None]], 1)
-        w = render_weight_from_density(laplace_density(d, fields.beta), deltas)
+        beta = fields.beta
+        w = render_weight_from_density(laplace_density(d, beta), deltas) * inside[:, None]
         parts = [_stratified(near, far, cfg.n_uniform, jitter)] if cfg.n_uniform else []
         if cfg.n_importance:
-            parts.append(sample_from_weights(tc, w, cfg.n_importance))
+            from_weights = sample_from_weights(tc, w, cfg.n_importance)
+            root, has = first_crossing(tc, d)
+            spread = 4.0 * beta.clamp_min(1e-3)
+            band = _stratified(root - spread, root + spread, cfg.n_importance, jitter)
+            parts.append(torch.where(has[:, None], band, from_weights))
         t = torch.cat(parts, -1)
         t = torch.minimum(torch.maximum(t, near[:, None]), far[:, None])
         t, _ = torch.sort(t, dim=-1)
-    return t, far, inside
+    return RaySamples(t=t, far=far, inside=inside, coarse_opacity=w.sum(-1))
 
 
 def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: SamplerConfig,
                   train_geometry: bool, jitter: bool = True, shade_rays: Tensor | None = None,
-                  min_weight: float = 1e-4) -> VolumeRender:
+                  min_weight: float = 1e-4, skip_empty: bool = False) -> VolumeRender:
     """Render rays under ``light`` (position (3,) or (N, 3) per ray).
 
     ``train_geometry``: keep the graph through the SDF gradient (eikonal and shading
@@ -128,16 +161,29 @@ def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: Sampl
     ``shade_rays`` (N,) bool: rays whose colour is needed (others -- e.g. rays outside
     the silhouette that only feed the mask loss -- get opacity, normal and depth only).
     Samples with weight below ``min_weight`` are not shaded (their contribution is < 1e-4).
+    ``skip_empty`` (evaluation): rays whose locating pass saw opacity < 1e-3 return zeros.
     """
-    t, far, inside = sample_along_rays(fields, rays, cfg, jitter)
-    N, S = t.shape
-    pts = rays.at(t).reshape(-1, 3)
+    rs = sample_along_rays(fields, rays, cfg, jitter)
+    N = len(rays)
+    if skip_empty:
+        live = torch.nonzero(rs.coarse_opacity > 1e-3).squeeze(-1)
+        rays_l = rays[live]
+        rs = RaySamples(rs.t[live], rs.far[live], rs.inside[live], rs.coarse_opacity[live])
+        if light.position.dim() == 2:
+            light = PointLight(light.position[live], light.intensity)
+        if shade_rays is not None:
+            shade_rays = shade_rays[live]
+    else:
+        rays_l = rays
+    t = rs.t
+    n, S = t.shape
+    pts = rays_l.at(t).reshape(-1, 3)
     d, g = fields.sdf_and_gradient(pts, create_graph=train_geometry)
     if not train_geometry:
         d, g = d.detach(), g.detach()
-    d = d.reshape(N, S)
-    deltas = torch.cat([t[:, 1:] - t[:, :-1], (far - t[:, -1]).clamp_min(1e-4)[:, None]], 1)
-    w = render_weight_from_density(laplace_density(d, fields.beta), deltas) * inside[:, None]
+    d = d.reshape(n, S)
+    deltas = torch.cat([t[:, 1:] - t[:, :-1], (rs.far - t[:, -1]).clamp_min(1e-4)[:, None]], 1)
+    w = render_weight_from_density(laplace_density(d, fields.beta), deltas) * rs.inside[:, None]
     normals = g / g.norm(dim=-1, keepdim=True).clamp_min(1e-8)
     need = w.detach() > min_weight
     if shade_rays is not None:
@@ -146,15 +192,24 @@ def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: Sampl
     ray_of = sel // S
     if light.position.dim() == 2:
         light = PointLight(light.position[ray_of], light.intensity)
-    radiance = torch.zeros(N * S, 3, dtype=pts.dtype, device=pts.device)
+    radiance = torch.zeros(n * S, 3, dtype=pts.dtype, device=pts.device)
     if sel.numel():
         p = pts[sel]
         radiance = radiance.index_put((sel,), shade(fields.material(p), normals[sel], p,
-                                                    -rays.directions[ray_of], light))
-    rgb = (w[..., None] * radiance.reshape(N, S, 3)).sum(1)
-    result = RenderResult(rgb=rgb, opacity=w.sum(1), normal=(w[..., None] * normals.reshape(N, S, 3)).sum(1),
-                          depth=(w * t).sum(1))
-    return VolumeRender(result=result, sdf_gradients=g)
+                                                    -rays_l.directions[ray_of], light))
+    rgb = (w[..., None] * radiance.reshape(n, S, 3)).sum(1)
+    opacity = w.sum(1)
+    normal = (w[..., None] * normals.reshape(n, S, 3)).sum(1)
+    depth = (w * t).sum(1)
+    if skip_empty:
+        def full(x):
+            out = torch.zeros((N, *x.shape[1:]), dtype=x.dtype, device=x.device)
+            out[live] = x
+            return out
+
+        rgb, opacity, normal, depth = full(rgb), full(opacity), full(normal), full(depth)
+    return VolumeRender(result=RenderResult(rgb=rgb, opacity=opacity, normal=normal, depth=depth),
+                        sdf_gradients=g)
 
 
 def render_chunked(fields: SceneFields, rays: Rays, light_fn, cfg: SamplerConfig, chunk: int = 4096) -> RenderResult:
@@ -163,7 +218,7 @@ def render_chunked(fields: SceneFields, rays: Rays, light_fn, cfg: SamplerConfig
     for s in range(0, len(rays), chunk):
         r = rays[s:s + chunk]
         with torch.no_grad():  # normals still get their x-gradient inside sdf_and_gradient
-            vr = volume_render(fields, r, light_fn(r), cfg, train_geometry=False, jitter=False)
+            vr = volume_render(fields, r, light_fn(r), cfg, train_geometry=False, jitter=False, skip_empty=True)
         res = vr.result
         outs.append(RenderResult(res.rgb.detach(), res.opacity.detach(), res.normal.detach(), res.depth.detach()))
     return RenderResult(rgb=torch.cat([o.rgb for o in outs]), opacity=torch.cat([o.opacity for o in outs]),

@@ -47,10 +47,11 @@ class TrainConfig:
     batch_out: int = 256
     batch_eikonal: int = 256
     batch_stage2: int = 700
-    lr: float = 1e-3
-    lr_final: float = 1e-4
+    lr: float = 5e-3
+    lr_final: float = 5e-4
     lr_grid: float = 1e-2
     lr_spec: float = 1e-3
+    lr_beta: float = 1e-2
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
     iters: int = 0
@@ -106,7 +107,7 @@ def paper_config(sr: str = "gaussian", psf_samples: int = 25, iters: int = 300_0
     return TrainConfig(preset="paper", fields=FieldConfig(kind="paper"),
                        sampler=SamplerConfig(n_coarse=64, n_importance=32, n_uniform=2),
                        sr=sr, psf_samples=psf_samples, batch_in=100, batch_out=500, batch_eikonal=1000,
-                       batch_stage2=700, lr=5e-4, lr_final=5e-5, lr_grid=5e-4, lr_spec=1e-5, iters=iters,
+                       batch_stage2=700, lr=5e-4, lr_final=5e-5, lr_grid=5e-4, lr_spec=1e-5, lr_beta=5e-4, iters=iters,
                        time_budget=0.0, stage2_fraction=0.1)
 
 
@@ -178,7 +179,7 @@ def make_optimizers(fields: SceneFields, cfg: TrainConfig, stage: int) -> list[t
                        {"params": head_p, "lr": cfg.lr, "base_lr": cfg.lr}]
         else:
             groups.append({"params": list(fields.sdf_net.parameters()), "lr": cfg.lr, "base_lr": cfg.lr})
-        groups.append({"params": [fields.log_beta], "lr": cfg.lr, "base_lr": cfg.lr})
+        groups.append({"params": [fields.log_beta], "lr": cfg.lr_beta, "base_lr": cfg.lr_beta})
     groups += [{"params": albedo_p, "lr": cfg.lr, "base_lr": cfg.lr},
                {"params": spec_p, "lr": cfg.lr_spec, "base_lr": cfg.lr_spec}]
     if table_p:

@@ -54,7 +54,7 @@ def test_a_few_steps_lower_the_loss(preset, default_scene, tmp_path):
         cfg = _tiny(fast_config(), 25)
     else:
         # the paper's networks and sampler layout, with batches shrunk so that a CPU takes seconds
-        cfg = replace(_tiny(paper_config(), 12), batch_in=8, batch_out=16, batch_eikonal=64, psf_samples=2,
+        cfg = replace(_tiny(paper_config(), 20), batch_in=8, batch_out=16, batch_eikonal=64, psf_samples=2,
                       sampler=SamplerConfig(n_coarse=16, n_importance=6, n_uniform=2), stage2_fraction=0.0)
     before = _fixed_loss(SceneFields(cfg.fields, learn_intensity=False), cfg, scene)
     torch.manual_seed(cfg.seed)  # train() seeds the same way: identical initial fields
