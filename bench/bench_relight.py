@@ -5,7 +5,8 @@ Run as ``python -m bench.bench_relight`` (2 threads: ``OMP_NUM_THREADS=2``). Mea
 * relit PSNR / SSIM of the **exact analytic fields** of the built-in scenes (bumpy = default,
   glossy) against their GT relit images (gt/relit/*.exr, >= 3 moved lights, with shadows,
   rendered by srvol.synth's independent float64 ray caster): the upper reference that proves
-  the renderer; and of an **exported asset** (``srvol.export`` on the same fields) on the default scene;
+  the renderer; and of **exported assets** (``srvol.export`` on the same fields, without and with
+  a tangent-space normal map) on the default scene;
 * asset vs neural: PSNR of the asset render against the fields' render, same camera and light;
 * srvol vs Mitsuba 3 on the exported asset (target >= 35 dB);
 * 640x480 with shadows: seconds of the neural path (exact fields; and the number of SDF
@@ -81,17 +82,17 @@ def scene_dir(name: str) -> Path:
     return out
 
 
-def exported_asset(name: str) -> Path:
+def exported_asset(name: str, normal_map: bool = False) -> Path:
     """``srvol.export`` of the exact fields, sized for HR 640x480 views (once into WORK)."""
     from srvol.export.pipeline import ExportOptions, export_fields
 
-    out = WORK / f"{name}_asset"
+    out = WORK / f"{name}_asset{'_nmap' if normal_map else ''}"
     if not (out / "asset.json").is_file():
         fields = builtin_scene(name)
         hr_px = default_camera(640, 480)
         pixel = 2.6 / float(hr_px.K[1, 1])  # scene units per HR pixel at the object's distance
-        export_fields(fields.sdf_fn, fields.material_fn, out, ExportOptions(formats=(), force=True,
-                                                                             hr_pixel_size=pixel))
+        export_fields(fields.sdf_fn, fields.material_fn, out, ExportOptions(
+            formats=(), force=True, hr_pixel_size=pixel, normal_map=normal_map))
     return out
 
 
@@ -253,18 +254,22 @@ def main() -> None:
     extra: dict = {}
     asset_path = exported_asset(DEFAULT_SCENE)
     asset = AssetScene.build(load_asset(asset_path))
+    asset_nmap = AssetScene.build(load_asset(exported_asset(DEFAULT_SCENE, normal_map=True)))
     faces = len(asset.faces)
     for name in SCENES:
         renderers = [NamedScene("exact fields", builtin_scene(name))]
         if name == DEFAULT_SCENE:
-            renderers.append(NamedScene("exported asset", asset))
+            renderers.append(NamedScene(f"exported asset ({faces} faces)", asset))
+            renderers.append(NamedScene(f"exported asset + normal map ({len(asset_nmap.faces)} faces)", asset_nmap))
         rows, comp = accuracy(name, renderers)
         acc += rows
         write_comparison_sheet(RESULTS / f"relight_sheet_{name}.png", comp, f"{name}: GT | renderers | |error|")
         timing.append(time_fields(name))
     timing += time_asset(asset, faces)
-    extra["asset vs neural (bumpy, 640x480, dB)"] = {
+    extra[f"asset vs neural (bumpy, {faces} faces, 640x480, dB)"] = {
         "value": f"{asset_vs_neural(builtin_scene(DEFAULT_SCENE), asset):.2f}", "target": ">= 35"}
+    extra[f"asset + normal map vs neural (bumpy, {len(asset_nmap.faces)} faces, 640x480, dB)"] = {
+        "value": f"{asset_vs_neural(builtin_scene(DEFAULT_SCENE), asset_nmap):.2f}", "target": ">= 35"}
     check = mitsuba(asset_path)
     extra["srvol vs Mitsuba 3 on the exported asset (320x240, dB)"] = {"value": f"{check.psnr:.2f}",
                                                                       "target": ">= 35"}
