@@ -148,7 +148,8 @@ def _run_eval(args) -> int:
 
 
 def _neural_relit_fn(fields):
-    """Shadowed renders of the neural fields under a moved light, from srvol.relight (None if absent)."""
+    """Shadowed renders of the neural fields under a moved light, from srvol.relight (None if absent);
+    2x2 rays per pixel, as the GT's supersampling."""
     try:
         from srvol.relight.render import render_fields
     except ImportError:
@@ -156,7 +157,8 @@ def _neural_relit_fn(fields):
     import numpy as np
 
     def relit(camera, light):
-        return np.asarray(render_fields(fields.sdf, fields.material, camera, light, None, shadows=True).rgb,
+        return np.asarray(render_fields(fields.sdf, fields.material, camera, light, None, shadows=True,
+                                        ss=2).rgb,
                           dtype=np.float32)
 
     return relit

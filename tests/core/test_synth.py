@@ -106,9 +106,6 @@ def test_relit_lights_are_away_from_the_camera(scene):
         assert img.shape == (120, 160, 3) and img.max() > 0
 
 
-@pytest.mark.xfail(strict=True, reason="Camera.look_at in srvol/types.py builds x = cross(z, -up), so world "
-                                       "up appears at the image bottom (a 180 deg roll); remove this marker "
-                                       "when look_at uses x = cross(z, up)")
 def test_look_at_puts_world_up_at_the_image_top():
     K = torch.tensor([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]], dtype=torch.float64)
     cam = Camera.look_at([3.0, 0, 0], [0, 0, 0], [0, 0, 1], K, 100, 100)
