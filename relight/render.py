@@ -22,6 +22,7 @@ from torch import Tensor
 
 from srvol.brdf import shade
 from srvol.errors import SrvolError
+from srvol.geometry import barycentric
 from srvol.export.types import Asset
 from srvol.psf import box_offsets
 from srvol.relight.edits import MaterialEdit, sample_texture
@@ -458,18 +459,3 @@ def render_asset(asset: Asset | AssetScene, camera: Camera, light: PointLight, e
     """The asset path: embree ray casting, barycentric UVs and normals, bilinear textures, srvol's BRDF."""
     scene = asset if isinstance(asset, AssetScene) else AssetScene.build(asset)
     return render_scene(scene, camera, light, edit, shadows, ss)
-
-
-def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """(M, 3) barycentric weights of points p (M, 3) in triangles (a, b, c)."""
-    v0, v1, v2 = b - a, c - a, p - a
-    d00 = (v0 * v0).sum(-1)
-    d01 = (v0 * v1).sum(-1)
-    d11 = (v1 * v1).sum(-1)
-    d20 = (v2 * v0).sum(-1)
-    d21 = (v2 * v1).sum(-1)
-    den = d00 * d11 - d01 * d01
-    den = np.where(np.abs(den) < 1e-30, 1e-30, den)
-    v = (d11 * d20 - d01 * d21) / den
-    w = (d00 * d21 - d01 * d20) / den
-    return np.stack([1 - v - w, v, w], axis=-1)

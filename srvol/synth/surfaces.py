@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from srvol.geometry import barycentric
 from srvol.render import ray_sphere
 from srvol.types import MaterialFn, Rays, SdfFn
 
@@ -130,7 +131,7 @@ class MeshSurface:
             pts[ray_idx] = locs
             f = self._faces[tri]
             a, b, c = self._verts[f[:, 0]], self._verts[f[:, 1]], self._verts[f[:, 2]]
-            bary = _barycentric(locs, a, b, c)
+            bary = barycentric(locs, a, b, c)
             nn = (bary[:, :1] * self._vn[f[:, 0]] + bary[:, 1:2] * self._vn[f[:, 1]]
                   + bary[:, 2:] * self._vn[f[:, 2]])
             # Keep shading normals facing the viewer's side of the geometric face.
@@ -146,19 +147,6 @@ class MeshSurface:
             normals[~hit] = 0
         return Hit(hit=torch.from_numpy(hit), t=torch.from_numpy(t), points=torch.from_numpy(pts),
                    normals=torch.from_numpy(normals))
-
-
-def _barycentric(p, a, b, c):
-    v0, v1, v2 = b - a, c - a, p - a
-    d00 = (v0 * v0).sum(-1)
-    d01 = (v0 * v1).sum(-1)
-    d11 = (v1 * v1).sum(-1)
-    d20 = (v2 * v0).sum(-1)
-    d21 = (v2 * v1).sum(-1)
-    den = np.where(np.abs(d00 * d11 - d01 * d01) < 1e-30, 1e-30, d00 * d11 - d01 * d01)
-    v = (d11 * d20 - d01 * d21) / den
-    w = (d00 * d21 - d01 * d20) / den
-    return np.stack([1 - v - w, v, w], axis=-1)
 
 
 Surface = AnalyticSurface | MeshSurface
