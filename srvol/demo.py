@@ -41,7 +41,7 @@ def run_demo(out: Path, budget: float, eval_views: int) -> int:
     step("eval", str(run), "--views", ",".join(views[:eval_views]))
     step("export", str(run), "--format", "usd,glb", "--out", str(asset), "--force")
     for k, pos in enumerate(LIGHTS):
-        step("relight", str(run), "--light-pos", pos, "--view", views[0], "--out", str(relit / f"light{k}.png"),
+        step("relight", str(run), f"--light-pos={pos}", "--view", views[0], "--out", str(relit / f"light{k}.png"),
              "--force")
     (out / "commands.txt").write_text("\n".join(commands) + "\n")
     step("report", str(run), "--out", str(out / "report.html"), "--include", str(relit),
