@@ -7,7 +7,6 @@ Only held-out test views are scored; training views never enter a generalisation
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable

@@ -16,11 +16,10 @@ Output decoding (sigmoid ranges, the alpha floor) lives here and only here:
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import torch
 import torch.nn as nn
-import torch.nn.functional as F
 from torch import Tensor
 
 from srvol.types import ALPHA_MIN, SurfaceMaterial

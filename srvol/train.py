@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +30,7 @@ from srvol.fields import FieldConfig, SceneFields
 from srvol.pixels import PixelBank
 from srvol.psf import SRMode
 from srvol.render import SamplerConfig, volume_render
-from srvol.types import PointLight
+from srvol.types import PointLight, Rays
 
 
 @dataclass(frozen=True)
@@ -209,11 +208,7 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, sigma: 
     use_mask = train_geo and bank.has_masks and len(bank.outside) > 0
     if use_mask:
         out = bank.sample(cfg.batch_out, False, mode, 1, sigma, sr, gen)
-        all_origins = torch.cat([rays.origins, out.rays.origins])
-        all_dirs = torch.cat([rays.directions, out.rays.directions])
-        from srvol.types import Rays
-
-        rays = Rays(all_origins, all_dirs)
+        rays = Rays(torch.cat([rays.origins, out.rays.origins]), torch.cat([rays.directions, out.rays.directions]))
     light = PointLight(position=rays.origins, intensity=intensity)
     S = batch.samples
     n_pix_rays = n_in * S

@@ -21,9 +21,9 @@ from srvol.data import AtomicFolder, SceneInfo, View, camera_to_json, write_scen
 from srvol.errors import SrvolError
 from srvol.images import atomic_write_text, write_exr
 from srvol.psf import blur_decimate
-from srvol.synth.render import GTRender, render
+from srvol.synth.render import render
 from srvol.synth.scenes import get_scene
-from srvol.synth.surfaces import AnalyticSurface, MeshSurface, Surface
+from srvol.synth.surfaces import MeshSurface, Surface
 from srvol.types import Camera, PointLight
 
 CAMERA_DISTANCE = 2.6
