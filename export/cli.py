@@ -37,13 +37,17 @@ def add_parser(sub) -> None:
                                                    "(default usd)")
     p.add_argument("--out", type=Path, required=True, help="asset folder to write")
     p.add_argument("--resolution", type=_auto_int, default=None, metavar="auto|N",
-                   help="marching-cubes cells per axis over [-1, 1] (auto: one cell per HR pixel footprint)")
+                   help="marching-cubes cells per axis over [-1, 1] (auto: one cell per HR pixel "
+                        "footprint, but no finer than a quarter of a grid model's finest SDF cell)")
     p.add_argument("--faces", type=_auto_int, default=None, metavar="auto|N",
                    help="face budget (auto: smallest within the HR-pixel error tolerance)")
     p.add_argument("--texture-size", type=_auto_int, default=None, metavar="auto|N",
                    help="texture side in texels (auto: about one texel per HR pixel footprint)")
     p.add_argument("--hr-pixel-size", type=float, default=None,
                    help="override the HR pixel footprint in scene units (default: from the run)")
+    p.add_argument("--allow-dark", action="store_true",
+                   help="export even when the baked material is black everywhere (refused by default: "
+                        "the sign of a collapsed run)")
     p.add_argument("--normal-map", action="store_true", help="also bake a tangent-space normal map")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=run_export)
@@ -91,7 +95,7 @@ def run_export(args) -> int:
         raise SrvolError("export needs a training run folder or --builtin NAME (not both)")
     if args.builtin is not None:
         sdf_fn, material_fn = _builtin_fields(args.builtin)
-        hr = BUILTIN_HR_PIXEL_SIZE
+        hr, sdf_cell = BUILTIN_HR_PIXEL_SIZE, None
     else:
         try:
             from srvol.checkpoint import load_model
@@ -106,11 +110,12 @@ def run_export(args) -> int:
         except Exception as e:  # a corrupt checkpoint surfaces as torch/pickle/KeyError errors
             raise SrvolError(f"{args.run}: unreadable checkpoint ({type(e).__name__}: {e})") from None
         sdf_fn, material_fn, hr = model.sdf, model.material, info.hr_pixel_size
+        sdf_cell = model.finest_sdf_cell()
     if args.hr_pixel_size is not None:
         hr = args.hr_pixel_size
     opts = ExportOptions(formats=_formats(args.format), resolution=args.resolution, faces=args.faces,
                          texture_size=args.texture_size, normal_map=args.normal_map, hr_pixel_size=hr,
-                         force=args.force)
+                         sdf_cell=sdf_cell, allow_dark=args.allow_dark, force=args.force)
     report = export_fields(sdf_fn, material_fn, args.out, opts)
     print(report.table())
     print(f"wrote {args.out}")

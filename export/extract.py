@@ -39,7 +39,8 @@ class ExtractOptions:
     block: fine cells per side of a dense marching-cubes block; coarse: cells per axis of the
     first level; margin: Lipschitz safety factor of the narrow-band test; chunk: points per
     SDF call; normals: also compute SDF vertex normals (the pipeline skips them: it decimates and
-    computes normals on the final vertices)."""
+    computes normals on the final vertices); refine: sample blocks on a 2h lattice first and
+    evaluate the in-between points only where the surface can pass (False: every point)."""
 
     resolution: int = 512
     bound: float = 1.0
@@ -48,6 +49,7 @@ class ExtractOptions:
     margin: float = 1.25
     chunk: int = 1 << 18
     normals: bool = True
+    refine: bool = True
 
 
 @dataclass(frozen=True)
@@ -117,6 +119,55 @@ def _active_blocks(sdf_fn: SdfFn, opts: ExtractOptions) -> tuple[np.ndarray, int
         offs = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), -1).reshape(-1, 3) * half
         idx = (idx[:, None, :] + offs[None]).reshape(-1, 3)
         size = half
+
+
+def _block_values(sdf_fn: SdfFn, corners: np.ndarray, opts: ExtractOptions, h: float) -> tuple[np.ndarray, int]:
+    """SDF samples (B, b+1, b+1, b+1) of the active blocks, exact wherever marching cubes can cut.
+
+    Every other lattice point is evaluated first (a 2h lattice); a 2h cell whose corner
+    samples prove, by the Lipschitz bound, that the surface cannot cross it has its
+    in-between points filled by trilinear interpolation (same sign as the corners, so no
+    triangle is produced there); the other cells get their in-between points evaluated.
+    Faces shared by two cells are exact when either cell is near. About 3-5x fewer SDF
+    evaluations than sampling every block densely; the mesh is identical.
+    """
+    b = opts.block
+    b1, c1 = b + 1, b // 2 + 1
+    if b % 2 or not opts.refine:
+        local = np.stack(np.meshgrid(*[np.arange(b1)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        pts = (corners[:, None, :] + local[None]).reshape(-1, 3)
+        return evaluate_sdf(sdf_fn, pts * h - opts.bound, opts.chunk).reshape(-1, b1, b1, b1), len(pts)
+    B = len(corners)
+    coarse_local = np.stack(np.meshgrid(*[np.arange(c1) * 2] * 3, indexing="ij"), -1).reshape(-1, 3)
+    pts = (corners[:, None, :] + coarse_local[None]).reshape(-1, 3)
+    coarse = evaluate_sdf(sdf_fn, pts * h - opts.bound, opts.chunk).reshape(B, c1, c1, c1)
+    n_eval = len(pts)
+    # trilinear upsampling (exact at the even points): average neighbours along each axis in turn
+    vals = np.empty((B, b1, b1, b1), dtype=np.float32)
+    vals[:, ::2, ::2, ::2] = coarse
+    vals[:, 1::2, ::2, ::2] = 0.5 * (coarse[:, :-1] + coarse[:, 1:])
+    vals[:, :, 1::2, ::2] = 0.5 * (vals[:, :, 0:-1:2, ::2] + vals[:, :, 2::2, ::2])
+    vals[:, :, :, 1::2] = 0.5 * (vals[:, :, :, 0:-1:2] + vals[:, :, :, 2::2])
+    # a 2h cell is far when some corner is farther from the zero level than the cell's diagonal
+    corner_abs = np.abs(coarse)
+    cmax = corner_abs[:, :-1, :-1, :-1]
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                cmax = np.maximum(cmax, corner_abs[:, dx:c1 - 1 + dx, dy:c1 - 1 + dy, dz:c1 - 1 + dz])
+    near = cmax <= opts.margin * 2.0 * h * math.sqrt(3.0)
+    need = np.zeros((B, b1, b1, b1), dtype=bool)
+    for dx in range(3):
+        for dy in range(3):
+            for dz in range(3):
+                need[:, dx:dx + b - 1:2, dy:dy + b - 1:2, dz:dz + b - 1:2] |= near
+    need[:, ::2, ::2, ::2] = False
+    bi, ii, jj, kk = np.nonzero(need)
+    if len(bi):
+        fine_pts = corners[bi] + np.stack([ii, jj, kk], -1)
+        vals[bi, ii, jj, kk] = evaluate_sdf(sdf_fn, fine_pts * h - opts.bound, opts.chunk)
+        n_eval += len(bi)
+    return vals, n_eval
 
 
 def _largest_component(faces: np.ndarray, n_verts: int) -> tuple[np.ndarray, int]:
@@ -205,10 +256,8 @@ def extract_mesh(sdf_fn: SdfFn, opts: ExtractOptions = ExtractOptions()) -> Extr
     if len(corners) == 0:
         raise SrvolError(EMPTY_SDF_MESSAGE)
     b1 = opts.block + 1
-    local = np.stack(np.meshgrid(*[np.arange(b1)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    grid_idx = (corners[:, None, :] + local[None]).reshape(-1, 3)
-    values = evaluate_sdf(sdf_fn, grid_idx * h - opts.bound, opts.chunk)
-    evaluations += len(grid_idx)
+    values, n_eval = _block_values(sdf_fn, corners, opts, h)
+    evaluations += n_eval
     if values.min() >= 0 or values.max() <= 0:
         raise SrvolError(EMPTY_SDF_MESSAGE)
     pos, faces = _march_blocks(values.reshape(-1, b1, b1, b1), corners, h, opts.bound)

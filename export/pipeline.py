@@ -37,8 +37,12 @@ FILE_NAMES = {"usd": "model.usda", "usdc": "model.usdc", "usdz": "model.usdz", "
 @dataclass(frozen=True)
 class ExportOptions:
     """formats: subset of FORMATS; resolution / faces / texture_size: None = auto from
-    hr_pixel_size (scene units per HR pixel at the object); normal_map: bake a tangent-space
-    normal map; gutter: dilation texels; force: replace an existing output folder."""
+    hr_pixel_size (scene units per HR pixel at the object); sdf_cell: the SDF model's finest
+    grid cell (None for MLP or exact fields) -- auto marching cubes uses cells of about
+    one HR pixel, but no finer than a quarter of it (smoothstep-interpolated grid cells
+    carry no shape detail below that); normal_map: bake a tangent-space normal map;
+    gutter: dilation texels; force: replace an existing output folder; allow_dark: export a
+    material that is black everywhere (otherwise refused as a collapsed run)."""
 
     formats: tuple[str, ...] = ("usd", "glb")
     resolution: int | None = None
@@ -46,6 +50,8 @@ class ExportOptions:
     texture_size: int | None = None
     normal_map: bool = False
     hr_pixel_size: float = 0.005
+    sdf_cell: float | None = None
+    allow_dark: bool = False
     gutter: int = 8
     force: bool = False
 
@@ -102,6 +108,34 @@ class _Timer:
         return False
 
 
+DARK_REFLECTANCE = 0.005
+"""Mean albedo + F0 over the surface below which a material counts as black (a collapsed run)."""
+
+
+def check_not_dark(textures) -> None:
+    """Refuse (one line) to export a material that reflects nothing anywhere: a run whose renders
+    would be black must be reported, not silently exported."""
+    cov = textures.coverage if textures.coverage is not None else np.ones(textures.albedo.shape[:2], bool)
+    if not cov.any():
+        return
+    level = float(textures.albedo[cov][:, :3].mean() + textures.specular[cov][:, :1].mean())
+    if level < DARK_REFLECTANCE:
+        raise SrvolError(f"the baked material is black (mean albedo + F0 = {level:.4f} < {DARK_REFLECTANCE}): "
+                         "a collapsed run? check `srvol eval`, or pass --allow-dark to export it anyway")
+
+
+SDF_CELL_SUBDIVISION = 4
+"""Marching-cubes cells per SDF grid cell: measured on the 360 s demo model, 256^3 (4 per cell)
+relights 49.0 dB against the neural fields and 512^3 52.0 dB, at 0.33x the time."""
+
+
+def mc_cell_size(hr_pixel_size: float, sdf_cell: float | None) -> float:
+    """The marching-cubes cell: one HR pixel, or a quarter of the model's finest SDF cell if larger."""
+    if sdf_cell is None:
+        return hr_pixel_size
+    return max(hr_pixel_size, sdf_cell / SDF_CELL_SUBDIVISION)
+
+
 def surface_area(mesh: Mesh) -> float:
     v = mesh.vertices.astype(np.float64)
     f = mesh.faces
@@ -123,7 +157,7 @@ def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
     report = ExportReport(out_dir=out_dir)
     t_all, c_all = time.perf_counter(), time.process_time()
     with AtomicFolder(out_dir, options.force) as tmp:
-        res = options.resolution or auto_resolution(options.hr_pixel_size)
+        res = options.resolution or auto_resolution(mc_cell_size(options.hr_pixel_size, options.sdf_cell))
         with _Timer(report, "extract"):
             ext = extract_mesh(sdf_fn, ExtractOptions(resolution=res, normals=False))
         report.resolution, report.full_faces = res, len(ext.mesh.faces)
@@ -146,6 +180,8 @@ def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
             baked = bake(sdf_fn, material_fn, mesh, BakeOptions(texture_size=size, gutter=options.gutter,
                                                                 normal_map=options.normal_map))
         report.unfilled_fraction = baked.unfilled_fraction
+        if not options.allow_dark:
+            check_not_dark(baked.textures)
         with _Timer(report, "write"):
             report.files = write_asset_files(tmp, mesh, baked.textures, formats)
         report.seconds["total"] = time.perf_counter() - t_all

@@ -187,6 +187,12 @@ class HashGrids(nn.Module):
     def out_dim(self) -> int:
         return len(self.resolutions) * self.channels
 
+    def decay_penalty(self) -> Tensor:
+        """Normalised weight decay, sum over levels of mean(feature^2) (as Zip-NeRF's grids): pulls
+        entries that rays seldom reach back to zero instead of leaving Adam's noise in them."""
+        t = self.table
+        return sum((t[a:b] ** 2).mean() for a, b in zip(self.offsets[:-1], self.offsets[1:]))
+
     def forward(self, x: Tensor, n_levels: int | None = None) -> Tensor:
         """(N, 3) in [-1, 1] -> (N, L * C) features of the first ``n_levels`` levels (all by default)."""
         idx_all, w_all = [], []
@@ -243,6 +249,11 @@ class SceneFields(nn.Module):
 
     def geometry_parameters(self) -> list[nn.Parameter]:
         return list(self.sdf_net.parameters()) + [self.log_beta]
+
+    def finest_sdf_cell(self) -> float | None:
+        """Side of the SDF's finest grid cell over [-1, 1]^3 (scene units), None for MLP fields:
+        no shape detail much below it exists in the model (export sizes its marching cubes by it)."""
+        return 2.0 / max(self.cfg.sdf_levels) if self.cfg.kind == "grid" else None
 
     def sdf(self, x: Tensor) -> Tensor:
         """(N, 3) -> (N,) signed distance, negative inside."""

@@ -66,3 +66,17 @@ def test_weld_merges_near_duplicates_and_drops_collapsed_faces():
     wv, wf = weld(v, f, tol=1e-6)
     assert len(wv) == 3
     assert wf.tolist() == [[0, 1, 2], [0, 1, 2]]  # the third face collapsed (0 and 3 merged)
+
+
+def test_refined_block_sampling_gives_the_dense_mesh_with_fewer_evaluations():
+    """Evaluating in-between lattice points only where the surface can pass changes no triangle."""
+    def bumpy(x: torch.Tensor) -> torch.Tensor:
+        r = x.norm(dim=-1)
+        return r - RADIUS - 0.04 * torch.sin(9 * x[:, 0]) * torch.cos(7 * x[:, 1]) * torch.sin(5 * x[:, 2])
+
+    dense = extract_mesh(bumpy, ExtractOptions(resolution=96, refine=False, normals=False))
+    fast = extract_mesh(bumpy, ExtractOptions(resolution=96, refine=True, normals=False))
+    assert fast.mesh.faces.shape == dense.mesh.faces.shape
+    key = lambda v: np.round(v.astype(np.float64), 6)[np.lexsort(np.round(v, 6).T)]
+    np.testing.assert_array_equal(key(fast.mesh.vertices), key(dense.mesh.vertices))
+    assert fast.sdf_evaluations < 0.6 * dense.sdf_evaluations
