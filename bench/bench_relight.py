@@ -244,7 +244,10 @@ def write_results(acc: list[AccuracyRow], timing: list[TimingRow], extra: dict) 
     print("\n".join(lines))
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
     from srvol.export.asset import load_asset
     from srvol.sheets import error_to_rgb, write_sheet
 

@@ -122,7 +122,10 @@ def write_tables(rows: list[SynthRow]) -> None:
     (RESULTS / "synth_table.json").write_text(json.dumps(plain, indent=1, allow_nan=False) + "\n")
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_synth_") as tmp:
         for name in SCENES:

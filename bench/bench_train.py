@@ -1,7 +1,7 @@
 """Training benchmark: SuperRVol (gaussian PSF) vs noSR vs Vol-SR (box), and the paper preset,
 at the same wall-clock budget on the default scene; quality against time from snapshots.
 
-    python -m bench.bench_train [--budget 600] [--variants auto:gaussian,auto:none,auto:box,paper:gaussian]
+    python -m bench.bench_train [--budget 600] [--variants auto:gaussian,auto:gaussian-lattice,auto:none,auto:box,paper:gaussian]
 
 Writes bench/results/train_table.{md,json}, train_psnr_vs_time.png and the eval sheet of the
 first variant. Each row records the command that produced it. Runs and the scene live in
@@ -72,7 +72,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="bumpy")
     ap.add_argument("--budget", type=float, default=600.0)
-    ap.add_argument("--variants", default="auto:gaussian,auto:none,auto:box,paper:gaussian")
+    ap.add_argument("--variants", default="auto:gaussian,auto:gaussian-lattice,auto:none,auto:box,paper:gaussian",
+                    help="preset:sr pairs; sr 'gaussian-lattice' = --sr gaussian --psf-sampler lattice (shared ray "
+                         "lattices over 4x4 LR pixels instead of N_s random rays per pixel)")
     ap.add_argument("--eval-views", type=int, default=3, help="held-out views scored per run")
     ap.add_argument("--snapshots", type=int, default=3)
     ap.add_argument("--train-only", default="paper",
@@ -89,7 +91,8 @@ def main(argv=None) -> int:
     for variant in args.variants.split(","):
         preset, sr = variant.split(":")
         run = WORK / "runs" / f"{args.scene}_{preset}_{sr}_{int(args.budget)}s"
-        train_cmd = ["srvol", "train", str(scene), "--out", str(run), "--preset", preset, "--sr", sr,
+        sr_args = ["--sr", "gaussian", "--psf-sampler", "lattice"] if sr == "gaussian-lattice" else ["--sr", sr]
+        train_cmd = ["srvol", "train", str(scene), "--out", str(run), "--preset", preset, *sr_args,
                      "--time-budget", str(args.budget), "--snapshots", str(args.snapshots), "--quiet", "--force"]
         eval_cmd = ["srvol", "eval", str(run), "--views", ",".join(test_views)]
         train_only = preset in args.train_only.split(",")

@@ -5,14 +5,15 @@ import importlib
 import sys
 import time
 
-BENCHES = ("bench.bench_synth", "bench.bench_train", "bench.bench_export", "bench.bench_relight")
+BENCHES = ("bench.bench_synth", "bench.bench_train", "bench.bench_export", "bench.bench_relight",
+           "bench.bench_study")
 
 
 def main() -> int:
     for name in BENCHES:
         t = time.time()
         print(f"== {name}", flush=True)
-        rc = importlib.import_module(name).main() or 0
+        rc = importlib.import_module(name).main([]) or 0
         print(f"== {name}: exit {rc} in {time.time() - t:.0f} s", flush=True)
         if rc:
             return rc

@@ -144,6 +144,12 @@ def _run_eval(args) -> int:
         if k in summary:
             print(f"{k:16s} {summary[k]:.4f}")
     print(f"wrote {out} and {args.run / 'eval_sheet.png'}")
+    dark = summary.get("dark_fraction", 0.0)
+    if dark > 0.5:
+        from srvol.metrics import DARK_RATIO
+
+        print(f"srvol: warning: the renders are dark: {dark:.0%} of lit foreground pixels get < "
+              f"{DARK_RATIO:.0%} of the ground truth (a collapsed run?)", file=sys.stderr)
     return 0
 
 
@@ -164,6 +170,36 @@ def _neural_relit_fn(fields):
     return relit
 
 
+# ----------------------------------------------------------------------------- bench
+
+BENCHES = {"all": "bench.run_all", "synth": "bench.bench_synth", "train": "bench.bench_train",
+           "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study"}
+
+
+def _add_bench(sub) -> None:
+    p = sub.add_parser("bench", help="run the benchmarks (tables and charts into bench/results/)",
+                       description="Run a benchmark of a source checkout; each writes markdown + JSON tables and "
+                                   "PNG charts under bench/results/ and records the command of every row. "
+                                   "'all' (= make bench) takes about two hours on 2 cores. Arguments after the "
+                                   "name go to the benchmark, e.g. `srvol bench study --budget 120 --only sweep`.")
+    p.add_argument("which", nargs="?", default="all", choices=tuple(BENCHES),
+                   help="synth, train (SR vs noSR vs Vol-SR, paper), export, relight, study (N_s sweep, "
+                        "stability, capacity) or all (default)")
+    p.add_argument("args", nargs=argparse.REMAINDER, help="passed on to the benchmark")
+    p.set_defaults(func=_run_bench)
+
+
+def _run_bench(args) -> int:
+    import os
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    if not (root / "bench" / "run_all.py").is_file():
+        raise SrvolError("srvol bench needs a source checkout (bench/ next to srvol/); clone the repository")
+    env = dict(os.environ, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "2"))
+    return subprocess.run([sys.executable, "-m", BENCHES[args.which], *args.args], cwd=root, env=env).returncode
+
+
 # ----------------------------------------------------------------------------- entry points
 
 def build_parser() -> argparse.ArgumentParser:
@@ -175,6 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_synth(sub)
     _add_inspect(sub)
     _add_eval(sub)
+    _add_bench(sub)
     for add in _optional_commands():
         add(sub)
     return parser

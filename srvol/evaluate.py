@@ -85,6 +85,7 @@ def evaluate_run(fields, scene: Scene, sampler: SamplerConfig, intensity, out_di
         m["ssim_hr"] = metrics.ssim(vr.rgb, gt_hr)
         if fg is not None:
             m["psnr_hr_masked"] = metrics.psnr(vr.rgb, gt_hr, mask=fg)
+            m["dark_fraction"] = metrics.dark_fraction(vr.rgb, gt_hr, fg)
             m["normal_mae_deg"] = metrics.normal_mae_deg(vr.normal, mask, fg & (vr.opacity > 0.5))
         lr_pred = blur_decimate(vr.rgb, scene.info.sr_factor, scene.info.psf_sigma_lr_px)
         m["psnr_lr"] = metrics.psnr(lr_pred, scene.views[stem].image)

@@ -187,12 +187,6 @@ class HashGrids(nn.Module):
     def out_dim(self) -> int:
         return len(self.resolutions) * self.channels
 
-    def decay_penalty(self) -> Tensor:
-        """Normalised weight decay, sum over levels of mean(feature^2) (as Zip-NeRF's grids): pulls
-        entries that rays seldom reach back to zero instead of leaving Adam's noise in them."""
-        t = self.table
-        return sum((t[a:b] ** 2).mean() for a, b in zip(self.offsets[:-1], self.offsets[1:]))
-
     def forward(self, x: Tensor, n_levels: int | None = None) -> Tensor:
         """(N, 3) in [-1, 1] -> (N, L * C) features of the first ``n_levels`` levels (all by default)."""
         idx_all, w_all = [], []

@@ -18,6 +18,24 @@ def psnr(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None, peak:
     return float("inf") if mse == 0 else 10.0 * np.log10(peak * peak / mse)
 
 
+DARK_RATIO = 0.1
+"""A foreground pixel is 'dark' when the render has less than this fraction of the GT's brightness."""
+
+
+def dark_fraction(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> float:
+    """Fraction of lit foreground pixels (GT mean > 0.02) rendered at < DARK_RATIO of the GT.
+
+    Catches the dark or empty outputs that NeRF-style methods are reported to produce under
+    changing light: PSNR alone can look tolerable on a mostly black image.
+    """
+    g = np.asarray(gt, np.float64).mean(-1)
+    p = np.asarray(pred, np.float64).mean(-1)
+    lit = np.asarray(mask, bool) & (g > 0.02)
+    if not lit.any():
+        return 0.0
+    return float((p[lit] < DARK_RATIO * g[lit]).mean())
+
+
 def ssim(pred: np.ndarray, gt: np.ndarray, peak: float = 1.0) -> float:
     """Structural similarity (scikit-image, Gaussian window as Wang et al.) over the whole image."""
     from skimage.metrics import structural_similarity

@@ -1,4 +1,11 @@
-"""Training pixels of a scene and the rays that estimate them under the PSF."""
+"""Training pixels of a scene and the rays that estimate them under the PSF.
+
+A batch is G groups; group g has R rays and P LR pixels, and pixel p of the group is
+estimated as ``sum_r weights[g, p, r] * C(ray r)``. Per-pixel sampling (``none``, ``box``,
+Monte Carlo ``gaussian``) is the case P = 1 with equal weights; the shared lattice (a
+patch of LR pixels whose HR sub-pixel rays serve every pixel of the patch under the PSF)
+has P = patch^2 and Gaussian weights.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,21 +15,36 @@ import torch
 from torch import Tensor
 
 from srvol.data import Scene
-from srvol.psf import SRMode, pixel_offsets
+from srvol.errors import SrvolError
+from srvol.psf import SRMode, lattice_weights, pixel_offsets
 from srvol.types import Rays
 
 
 @dataclass(frozen=True)
 class PixelBatch:
-    """P LR pixels, each estimated by S sub-pixel rays (``rays`` has P * S entries, pixel-major).
+    """G groups of P LR pixels estimated from R rays each (``rays`` has G * R entries, group-major).
 
-    target (P, 3) linear colour; mask (P,) foreground in {0, 1}; samples S.
+    weights (G, P, R), rows summing to 1; target (G * P, 3) linear colour; mask (G * P,)
+    foreground in {0, 1}.
     """
 
     rays: Rays
+    weights: Tensor
     target: Tensor
     mask: Tensor
-    samples: int
+
+    @property
+    def n_rays(self) -> int:
+        return self.weights.shape[0] * self.weights.shape[2]
+
+    @property
+    def n_pixels(self) -> int:
+        return self.weights.shape[0] * self.weights.shape[1]
+
+    def estimate(self, per_ray: Tensor) -> Tensor:
+        """Per-ray values (G * R, C) -> per-pixel PSF estimates (G * P, C)."""
+        G, P, R = self.weights.shape
+        return torch.einsum("gpr,grc->gpc", self.weights, per_ray.reshape(G, R, -1)).reshape(G * P, -1)
 
 
 class PixelBank:
@@ -37,9 +59,11 @@ class PixelBank:
         self.K_inv = torch.linalg.inv(Ks).to(device)
         self.R_T = W2C[:, :3, :3].transpose(1, 2).contiguous().to(device)
         self.centers = torch.stack([v.camera.center.float() for v in views]).to(device)
-        colours, masks, vid, ij = [], [], [], []
+        colours, masks, vid, ij, sizes, start = [], [], [], [], [], [0]
         for k, v in enumerate(views):
             H, W = v.image.shape[:2]
+            sizes.append((H, W))
+            start.append(start[-1] + H * W)
             jj, ii = np.meshgrid(np.arange(H), np.arange(W), indexing="ij")
             colours.append(v.image.reshape(-1, 3))
             masks.append((v.mask if v.mask is not None else np.ones((H, W), bool)).reshape(-1))
@@ -49,6 +73,8 @@ class PixelBank:
         self.mask = torch.from_numpy(np.concatenate(masks)).to(device)
         self.view = torch.from_numpy(np.concatenate(vid)).long().to(device)
         self.ij = torch.from_numpy(np.concatenate(ij)).float().to(device)
+        self.sizes = torch.tensor(sizes, dtype=torch.long, device=device)
+        self.view_start = torch.tensor(start[:-1], dtype=torch.long, device=device)
         self.inside = torch.nonzero(self.mask).squeeze(-1)
         self.outside = torch.nonzero(~self.mask).squeeze(-1)
 
@@ -64,9 +90,37 @@ class PixelBank:
 
     def sample(self, n: int, inside: bool, mode: SRMode, psf_samples: int, sigma: float, sr: int,
                generator: torch.Generator) -> PixelBatch:
+        """n pixels (in or out of the mask), each estimated by its own rays (groups of one pixel)."""
         pool = self.inside if inside else self.outside
         pick = pool[torch.randint(len(pool), (n,), generator=generator).to(pool.device)]
         offsets = pixel_offsets(mode, n, psf_samples, sigma, sr, generator=generator).to(self.device)
         uv = self.ij[pick][:, None, :] + 0.5 + offsets
-        return PixelBatch(rays=self.rays(self.view[pick], uv), target=self.colour[pick],
-                          mask=self.mask[pick].float(), samples=offsets.shape[1])
+        S = offsets.shape[1]
+        weights = torch.full((n, 1, S), 1.0 / S, device=self.device)
+        return PixelBatch(rays=self.rays(self.view[pick], uv), weights=weights, target=self.colour[pick],
+                          mask=self.mask[pick].float())
+
+    def sample_patches(self, n: int, patch: int, cell: float, sigma: float,
+                       generator: torch.Generator) -> PixelBatch:
+        """n patches of patch x patch LR pixels around random in-mask pixels, each estimated from
+        one shared, randomly shifted lattice of rays (spacing ``cell`` LR px) under the Gaussian PSF."""
+        if int(self.sizes.min()) < patch:
+            raise SrvolError(f"--psf-sampler lattice: {patch}x{patch}-pixel patches need images at least "
+                             f"{patch} pixels wide and high")
+        pick = self.inside[torch.randint(len(self.inside), (n,), generator=generator).to(self.device)]
+        view = self.view[pick]
+        H, W = self.sizes[view, 0], self.sizes[view, 1]
+        x0 = (self.ij[pick, 0] - patch // 2).clamp(min=0)
+        y0 = (self.ij[pick, 1] - patch // 2).clamp(min=0)
+        x0 = torch.minimum(x0, (W - patch).float())
+        y0 = torch.minimum(y0, (H - patch).float())
+        shift = torch.rand(n, 2, generator=generator).to(self.device)
+        pix_off, ray_off, weights = lattice_weights(patch, cell, sigma, shift)
+        origin = torch.stack([x0, y0], -1)[:, None, :]
+        uv = origin + ray_off  # (n, R, 2) continuous LR coordinates
+        # pixels of each patch -> rows of the bank (views are stored one after another, row-major)
+        px = (origin + pix_off - 0.5).round().long()  # (n, P, 2) integer (i, j)
+        rows = self.view_start[view][:, None] + px[..., 1] * W[:, None] + px[..., 0]
+        rows = rows.reshape(-1)
+        return PixelBatch(rays=self.rays(view, uv), weights=weights, target=self.colour[rows],
+                          mask=self.mask[rows].float())

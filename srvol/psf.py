@@ -8,7 +8,11 @@ deviation ``sigma`` (in LR pixels). This module holds
 * the sub-pixel ray offsets of the three training variants
   (:func:`pixel_offsets`): ``gaussian`` (SuperRVol, Monte Carlo from k),
   ``box`` (Vol-SR / NeRF-SR: a fixed d x d grid of HR pixel centres) and
-  ``none`` (one ray through the pixel centre).
+  ``none`` (one ray through the pixel centre), and
+* the shared lattice (:func:`lattice_weights`): a patch of LR pixels whose rays,
+  on a randomly shifted regular lattice, serve every pixel of the patch with
+  Gaussian weights -- an unbiased, low-variance estimate of the same integral
+  at a few rays per LR pixel instead of 25.
 
 Offsets are in LR pixels relative to the pixel centre.
 """
@@ -83,14 +87,36 @@ def pixel_offsets(mode: SRMode, n_pixels: int, n_samples: int, sigma_lr_px: floa
     return torch.zeros(n_pixels, 1, 2)
 
 
-def gaussian_weights_on_grid(offsets_lr: Tensor, cell_lr: float, sigma_lr_px: float) -> Tensor:
-    """Mass of the Gaussian PSF over square cells of side ``cell_lr`` centred at ``offsets_lr`` (..., 2).
+LATTICE_TRUNCATION = 2.5
+"""The lattice covers the patch plus this many sigma on each side (the Gaussian's mass beyond
+2.5 sigma per axis is 1.2 %; the weights are renormalised)."""
 
-    The weight a sub-pixel sample gets when rays on a regular grid are shared by
-    neighbouring LR pixels (the fast preset's patch renderer).
+
+def lattice_size(patch: int, cell: float, sigma_lr_px: float) -> int:
+    """Rays per side of the lattice that serves a patch x patch block of LR pixels."""
+    span = (patch - 1) + 2 * LATTICE_TRUNCATION * sigma_lr_px
+    return int(math.floor(span / cell)) + 1
+
+
+def lattice_weights(patch: int, cell: float, sigma_lr_px: float, shift: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Pixel centres, ray positions and PSF weights of shared-lattice patches.
+
+    shift (G, 2) in [0, 1): the lattice's random offset in units of ``cell``.
+    Returns pixel centres (P, 2) and ray positions (G, R, 2), both in LR pixels from the
+    patch's corner (pixel (a, b) has its centre at (a + 0.5, b + 0.5)), and weights
+    (G, P, R): w ~ k(ray - centre), each row normalised to 1. Averaged over the shift the
+    estimate sum_r w C(ray) is the PSF integral at the pixel (up to the renormalisation).
     """
-    s = max(sigma_lr_px, 1e-4) * math.sqrt(2.0)
-    lo = (offsets_lr - 0.5 * cell_lr) / s
-    hi = (offsets_lr + 0.5 * cell_lr) / s
-    m = 0.5 * (torch.erf(hi) - torch.erf(lo))
-    return m[..., 0] * m[..., 1]
+    K = lattice_size(patch, cell, sigma_lr_px)
+    dev = shift.device
+    c = torch.arange(patch, dtype=torch.float32, device=dev) + 0.5
+    py, px = torch.meshgrid(c, c, indexing="ij")
+    pix = torch.stack([px.reshape(-1), py.reshape(-1)], -1)  # (P, 2)
+    lo = 0.5 - LATTICE_TRUNCATION * sigma_lr_px
+    k = torch.arange(K, dtype=torch.float32, device=dev) * cell
+    ky, kx = torch.meshgrid(k, k, indexing="ij")
+    base = torch.stack([kx.reshape(-1), ky.reshape(-1)], -1) + lo  # (R, 2)
+    rays = base[None] + shift.to(torch.float32)[:, None, :] * cell  # (G, R, 2)
+    d2 = ((rays[:, None, :, :] - pix[None, :, None, :]) ** 2).sum(-1)  # (G, P, R)
+    # normalised Gaussian weights; softmax cannot underflow to 0/0 for a PSF much narrower than the cell
+    return pix, rays, torch.softmax(-0.5 * d2 / max(sigma_lr_px, 1e-4) ** 2, dim=-1)

@@ -44,8 +44,11 @@ def build_report(run: Path, extra_dirs: list[Path], commands: list[str]) -> str:
              f"<h1>srvol report: {html.escape(run.name)}</h1>"]
     cfg = json.loads((run / "config.json").read_text())
     parts.append("<h2>Training</h2>")
-    parts.append(f"<p>preset <b>{html.escape(cfg['train']['preset'])}</b>, PSF model "
-                 f"<b>{html.escape(cfg['train']['sr'])}</b>, {cfg['train']['psf_samples']} rays per LR pixel.</p>")
+    t = cfg["train"]
+    rays = ("shared ray lattices over 4x4 LR pixels" if t["sr"] == "gaussian" and t.get("psf_sampler") == "lattice"
+            else f"{t['psf_samples']} rays per LR pixel")
+    parts.append(f"<p>preset <b>{html.escape(t['preset'])}</b>, PSF model "
+                 f"<b>{html.escape(t['sr'])}</b>, {html.escape(rays)}.</p>")
     reasons = cfg["train"].get("reasons") or []
     if reasons:
         parts.append("<ul>" + "".join(f"<li>{html.escape(r)}</li>" for r in reasons) + "</ul>")

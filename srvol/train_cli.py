@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -32,7 +33,16 @@ def add_parser(sub) -> None:
     p.add_argument("--preset", choices=PRESETS, default="auto", help="model/training recipe (default auto)")
     p.add_argument("--sr", choices=SR_MODES, default="gaussian",
                    help="PSF model: gaussian (SuperRVol), box (Vol-SR, d x d HR grid), none (one ray per pixel)")
-    p.add_argument("--psf-samples", type=int, help="rays per LR pixel for --sr gaussian (default: by preset)")
+    p.add_argument("--psf-samples", type=int,
+                   help="--sr gaussian: Monte Carlo rays per LR pixel (the paper's N_s; implies --psf-sampler mc "
+                        "unless given) or the per-pixel ray budget of a lattice step (default: by preset)")
+    p.add_argument("--psf-sampler", choices=("mc", "lattice"),
+                   help="--sr gaussian: 'mc' = N_s random rays per LR pixel drawn from the PSF (paper, fast); "
+                        "'lattice' = one randomly shifted ray lattice shared by 4x4 LR pixels with Gaussian "
+                        "weights (default mc; see README)")
+    p.add_argument("--capacity", type=float, default=1.0,
+                   help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
+                        "this factor -- for capacity studies (default 1: what the scene needs)")
     p.add_argument("--time-budget", type=float, default=600.0,
                    help="wall-clock seconds for both stages (default 600; ignored with --iters)")
     p.add_argument("--iters", type=int, help="total iterations of both stages instead of a time budget")
@@ -50,12 +60,16 @@ def add_parser(sub) -> None:
 def build_config(scene, args):
     from srvol.train import auto_config, fast_config, paper_config
 
+    if not (math.isfinite(args.capacity) and 0.1 <= args.capacity <= 8):
+        raise SrvolError(f"--capacity {args.capacity}: must be between 0.1 and 8")
+    if args.capacity != 1.0 and args.preset != "auto":
+        raise SrvolError("--capacity applies to --preset auto only")
     if args.preset == "paper":
         cfg = paper_config(sr=args.sr)
     elif args.preset == "fast":
         cfg = fast_config(sr=args.sr)
     else:
-        cfg = auto_config(scene, args.sr, args.time_budget)
+        cfg = auto_config(scene, args.sr, args.time_budget, capacity=args.capacity)
     changes = {"device": args.device, "seed": args.seed, "time_budget": args.time_budget,
                "snapshots": max(0, args.snapshots)}
     if args.iters is not None:
@@ -68,6 +82,9 @@ def build_config(scene, args):
         if args.psf_samples < 1:
             raise SrvolError(f"--psf-samples {args.psf_samples}: must be >= 1")
         changes["psf_samples"] = args.psf_samples
+        changes["psf_sampler"] = "mc"
+    if args.psf_sampler is not None:
+        changes["psf_sampler"] = args.psf_sampler
     if args.sr == "none":
         changes["psf_samples"] = 1
     if args.checkpoint_every is not None:
@@ -109,7 +126,14 @@ def run_train(args) -> int:
     from srvol.fields import SceneFields
 
     n_params = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
-    print(f"preset {cfg.preset}, sr {cfg.sr}, {cfg.psf_samples} rays per LR pixel, "
+    if cfg.sr == "gaussian" and cfg.psf_sampler == "lattice":
+        from srvol.psf import lattice_size
+
+        k = lattice_size(cfg.patch, cfg.lattice_cell, scene.info.psf_sigma_lr_px)
+        rays = f"shared {k}x{k} lattices over {cfg.patch}x{cfg.patch} LR pixels ({k * k / cfg.patch ** 2:.1f} rays per LR pixel)"
+    else:
+        rays = f"{cfg.psf_samples} rays per LR pixel"
+    print(f"preset {cfg.preset}, sr {cfg.sr}, {rays}, "
           f"{cfg.sampler.n_coarse} locating + {cfg.sampler.gradient_samples} gradient samples per ray, "
           f"{n_params / 1e6:.2f} M parameters")
     print(f"  {cfg.fields.parameter_summary()}")

@@ -89,6 +89,20 @@ def bumpy_material(x: Tensor) -> SurfaceMaterial:
                            alpha=torch.full((n, 1), 0.25, dtype=x.dtype))
 
 
+def dark_material(x: Tensor) -> SurfaceMaterial:
+    """The default scene's texture at a tenth of its albedo (0.005..0.085): coal-like, mostly specular light."""
+    m = bumpy_material(x)
+    return SurfaceMaterial(albedo=0.1 * m.albedo, specular=m.specular, alpha=m.alpha)
+
+
+def shiny_material(x: Tensor) -> SurfaceMaterial:
+    """The default scene's texture under a near-mirror coat: roughness 0.1 (alpha 0.01), F0 0.3."""
+    m = bumpy_material(x)
+    n = x.shape[0]
+    return SurfaceMaterial(albedo=0.5 * m.albedo, specular=torch.full((n, 1), 0.3, dtype=x.dtype),
+                           alpha=torch.full((n, 1), 0.01, dtype=x.dtype))
+
+
 def glossy_sdf(x: Tensor) -> Tensor:
     """A sphere with a spherical bowl cut into its top (a concavity that casts shadows)
     and a small sphere resting in the bowl."""
@@ -158,6 +172,14 @@ def _bumpy() -> Surface:
     return AnalyticSurface(sdf=bumpy_sdf, material=bumpy_material, lipschitz=1.6, bound=0.76)
 
 
+def _dark() -> Surface:
+    return AnalyticSurface(sdf=bumpy_sdf, material=dark_material, lipschitz=1.6, bound=0.76)
+
+
+def _shiny() -> Surface:
+    return AnalyticSurface(sdf=bumpy_sdf, material=shiny_material, lipschitz=1.6, bound=0.76)
+
+
 def _glossy() -> Surface:
     return AnalyticSurface(sdf=glossy_sdf, material=glossy_material, lipschitz=1.0, bound=0.7)
 
@@ -170,6 +192,9 @@ SCENES: dict[str, BuiltinScene] = {
     "bumpy": BuiltinScene("bumpy", "analytic bumpy sphere, sub-LR-pixel grooves, astronaut albedo (default)", _bumpy),
     "bunny": BuiltinScene("bunny", "Stanford bunny from the pymeshlab wheel, coffee texture", _bunny),
     "glossy": BuiltinScene("glossy", "bowl-cut sphere + ball, varying roughness/specular, cast shadows", _glossy),
+    "dark": BuiltinScene("dark", "the default shape with a very dark albedo (0.005..0.085; stability study)", _dark),
+    "shiny": BuiltinScene("shiny", "the default shape under a near-mirror coat, roughness 0.1, F0 0.3 "
+                                   "(stability study)", _shiny),
 }
 DEFAULT_SCENE = "bumpy"
 

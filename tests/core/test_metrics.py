@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from srvol.metrics import albedo_psnr, chamfer, normal_mae_deg, psnr, ssim
+from srvol.metrics import albedo_psnr, chamfer, dark_fraction, normal_mae_deg, psnr, ssim
 
 
 def test_psnr_of_a_constant_offset():
@@ -82,3 +82,14 @@ def test_chamfer_is_the_mean_of_both_directions():
     a = np.zeros((1, 3))
     b = np.array([[0.0, 0, 0], [1.0, 0, 0]])
     assert chamfer(a, b) == pytest.approx(0.25, abs=1e-12)
+
+
+def test_dark_fraction_counts_lit_pixels_rendered_black():
+    gt = np.full((4, 4, 3), 0.5)
+    pred = gt.copy()
+    pred[:2] = 0.01  # half the image at 2 % of the truth
+    mask = np.ones((4, 4), bool)
+    assert dark_fraction(pred, gt, mask) == 0.5
+    assert dark_fraction(gt, gt, mask) == 0.0
+    gt[:] = 0.0  # nothing lit: nothing can be dark
+    assert dark_fraction(pred, gt, mask) == 0.0

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from srvol.psf import SRMode, blur_decimate, decimation_matrix, gaussian_weights_on_grid, pixel_offsets
+from srvol.psf import SRMode, blur_decimate, decimation_matrix, pixel_offsets
 
 
 @pytest.mark.parametrize("sigma", [0.0, 0.375, 0.8])
@@ -92,9 +92,24 @@ def test_none_is_one_ray_through_the_centre():
     assert torch.all(off == 0)
 
 
-def test_gaussian_weights_on_a_fine_grid_sum_to_one():
-    c = (torch.arange(-20, 21, dtype=torch.float64)) * 0.25
-    y, x = torch.meshgrid(c, c, indexing="ij")
-    w = gaussian_weights_on_grid(torch.stack([x, y], -1), 0.25, 0.375)
-    assert w.sum().item() == pytest.approx(1.0, abs=1e-9)
-    assert w[20, 20] == w.max()
+def test_lattice_estimate_of_a_fine_grating_is_the_psf_integral():
+    """A grating finer than the LR Nyquist limit (period 1.5 LR px, as the default scene's grooves):
+    the PSF integral at pixel p is sin(2 pi f p) * exp(-2 pi^2 sigma^2 f^2). Averaged over the lattice's
+    random shift the shared-lattice estimate equals it, and one shift is far closer than Monte Carlo
+    with the same number of rays per pixel."""
+    from srvol.psf import lattice_weights
+
+    sigma, f, patch, cell = 0.375, 1 / 1.5, 4, 0.5
+    g = torch.Generator().manual_seed(0)
+    shift = torch.rand(4000, 2, generator=g)
+    pix, rays, w = lattice_weights(patch, cell, sigma, shift)
+    assert torch.allclose(w.sum(-1), torch.ones(()), atol=1e-5)
+    grating = lambda xy: torch.sin(2 * math.pi * f * xy[..., 0])
+    est = torch.einsum("gpr,gr->gp", w, grating(rays))
+    exact = grating(pix) * math.exp(-2 * math.pi ** 2 * sigma ** 2 * f ** 2)
+    assert (est.mean(0) - exact).abs().max() < 0.01
+    rays_per_pixel = rays.shape[1] / patch ** 2
+    mc = grating(pix[None, :, None, :] + torch.randn(4000, patch ** 2, round(rays_per_pixel), 2, generator=g) * sigma)
+    err_lattice = (est - exact).pow(2).mean().sqrt()
+    err_mc = (mc.mean(-1) - exact).pow(2).mean().sqrt()
+    assert err_lattice < 0.1 * err_mc  # measured: 0.008 vs 0.27 at 6.25 rays per pixel

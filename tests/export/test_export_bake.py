@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from export_testfields import RADIUS, colour_material, sphere_sdf
@@ -79,3 +80,19 @@ def test_auto_texture_size_from_hr_texel_density():
     # 1 m^2 at 1 mm HR pixels: 1e6 texels / 0.6 packing -> side 1291 -> 2048.
     assert auto_texture_size(1.0, 0.001) == 2048
     assert auto_texture_size(1.0, 0.01) == 256  # clamped to the minimum
+
+
+def test_a_black_material_is_refused_not_silently_exported():
+    """A collapsed run bakes albedo = F0 = 0 everywhere: export stops with one line naming the way out."""
+    from srvol.errors import SrvolError
+    from srvol.export.pipeline import check_not_dark
+    from srvol.export.types import TextureSet
+
+    cov = np.ones((8, 8), bool)
+    black = TextureSet(albedo=np.zeros((8, 8, 3), np.float32), specular=np.zeros((8, 8, 1), np.float32),
+                       alpha=np.full((8, 8, 1), 0.25, np.float32), coverage=cov)
+    with pytest.raises(SrvolError, match="--allow-dark"):
+        check_not_dark(black)
+    coal = TextureSet(albedo=np.full((8, 8, 3), 0.01, np.float32), specular=np.full((8, 8, 1), 0.04, np.float32),
+                      alpha=black.alpha, coverage=cov)
+    check_not_dark(coal)  # very dark but real (the stability study's dark scene): exported

@@ -28,14 +28,16 @@ def test_none_box_gaussian_offsets(default_scene):
     for mode, S in ((SRMode.NONE, 1), (SRMode.BOX, sr * sr), (SRMode.GAUSSIAN, 64)):
         g = torch.Generator().manual_seed(1)
         batch = bank.sample(6, True, mode, S, 0.375, sr, g)
-        uv = _landing(bank, scene, batch, batch.samples)
+        samples = batch.weights.shape[2]
+        assert batch.weights.shape == (6, 1, samples) and torch.allclose(batch.weights, torch.tensor(1.0 / samples))
+        uv = _landing(bank, scene, batch, samples)
         centre_of_pixel = uv.mean(1) if mode != SRMode.GAUSSIAN else None
         frac = uv - uv.floor()
         if mode == SRMode.NONE:
-            assert batch.samples == 1
+            assert samples == 1
             assert torch.allclose(frac, torch.full_like(frac, 0.5), atol=1e-3)
         elif mode == SRMode.BOX:
-            assert batch.samples == sr * sr
+            assert samples == sr * sr
             # sub-pixel centres at (k + 0.5) / sr inside the pixel, all distinct
             k = frac * sr - 0.5
             assert torch.allclose(k, k.round(), atol=1e-3)
@@ -55,3 +57,30 @@ def test_targets_are_the_pixels_colours(default_scene):
     i, j = bank.ij[k].long().tolist()
     assert np.allclose(bank.colour[k].numpy(), v.image[j, i])
     assert bool(v.mask[j, i])
+
+
+def test_lattice_patches_share_rays_among_their_pixels(default_scene):
+    """Each patch's rays lie on one lattice (spacing cell) over the patch and a margin, every pixel of the
+    patch is estimated from all of them with weights peaked at its own centre, and the targets are the
+    patch pixels' colours."""
+    scene = load_scene(default_scene)
+    bank = PixelBank(scene, torch.device("cpu"))
+    g = torch.Generator().manual_seed(3)
+    batch = bank.sample_patches(3, 4, 0.5, 0.375, g)
+    G, P, R = batch.weights.shape
+    assert (G, P) == (3, 16) and batch.n_rays == 3 * R and batch.n_pixels == 48
+    uv = _landing(bank, scene, batch, R)  # (G, R, 2)
+    steps = torch.diff(uv[..., 0].sort(dim=1).values, dim=1)
+    assert torch.allclose(steps[steps > 1e-3], torch.tensor(0.5), atol=2e-3)
+    for gi in range(G):
+        # the heaviest ray of each pixel is within half a cell (per axis) of that pixel's centre
+        best = uv[gi][batch.weights[gi].argmax(-1)]
+        assert (best.frac() - 0.5).abs().max() <= 0.25 + 1e-3
+    views = scene.train_views()
+    k = torch.cdist(batch.rays.origins[::R], bank.centers).argmin(1)
+    for gi in range(G):
+        v = views[int(k[gi])]
+        best = uv[gi][batch.weights[gi].argmax(-1)].floor().long()
+        for p in range(P):
+            i, j = best[p].tolist()
+            assert np.allclose(batch.target[gi * P + p].numpy(), v.image[j, i])

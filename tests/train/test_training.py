@@ -45,11 +45,13 @@ def _load_fields(run: Path, cfg: TrainConfig) -> SceneFields:
     return f
 
 
-@pytest.mark.parametrize("preset", ["auto", "fast", "paper"])
+@pytest.mark.parametrize("preset", ["auto", "auto-lattice", "fast", "paper"])
 def test_a_few_steps_lower_the_loss(preset, default_scene, tmp_path):
     scene = load_scene(default_scene)
     if preset == "auto":
         cfg = _tiny(auto_config(scene, "gaussian", 60.0), 25)
+    elif preset == "auto-lattice":
+        cfg = _tiny(replace(auto_config(scene, "gaussian", 60.0), psf_sampler="lattice"), 25)
     elif preset == "fast":
         cfg = _tiny(fast_config(), 25)
     else:
@@ -164,3 +166,23 @@ def test_cli_train_errors_are_one_line(default_scene, tmp_path):
     p = _srvol("train", str(default_scene), "--out", str(tmp_path / "r3"), "--resume")
     _, err = p.communicate(timeout=60)
     assert p.returncode == 2 and err.count("\n") == 1
+
+
+def test_auto_capacity_scales_the_scene_derived_model(default_scene):
+    """auto derives its model from the scene; --capacity x0.5 / x2 (the capacity study) shrink / grow
+    grids, hash table and heads around it, and say so in the reasons."""
+    scene = load_scene(default_scene)
+    sizes = {}
+    for c in (0.5, 1.0, 2.0):
+        cfg = auto_config(scene, "gaussian", 60.0, capacity=c)
+        sizes[c] = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
+        assert cfg.psf_sampler == "mc"
+        assert (c != 1.0) == any("capacity x" in r for r in cfg.reasons)
+    assert sizes[0.5] < sizes[1.0] < sizes[2.0]
+
+
+def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
+    for args in (("--capacity", "0"), ("--capacity", "2", "--preset", "paper")):
+        p = _srvol("train", str(default_scene), "--out", str(tmp_path / "r"), "--iters", "1", *args)
+        _, err = p.communicate(timeout=60)
+        assert p.returncode == 2 and err.count("\n") == 1 and "--capacity" in err
