@@ -114,7 +114,7 @@ def test_synth_list_names_the_builtin_scenes(runs):
     proc = runs.synth_list.result()
     assert proc.returncode == 0, proc.stderr
     names = [line.split()[0] for line in proc.stdout.strip().splitlines()]
-    assert names == ["bumpy", "bunny", "glossy"]
+    assert names == ["bumpy", "bunny", "glossy", "dark", "shiny"]
     assert "[default]" in proc.stdout.splitlines()[0]
 
 
