@@ -1,6 +1,6 @@
 """Speed-accuracy sweep, stability matrix and capacity study (the charts users choose a method by).
 
-    python -m bench.bench_study [--budget 120] [--only sweep,stability,capacity] [--collect]
+    python -m bench.bench_study [--budget 120] [--only sweep,stability,capacity] [--collect | --from-results]
 
 Every run is ``srvol train`` with one ``--time-budget`` followed by ``srvol eval`` on the same
 held-out views; each table row records both commands. Three studies:
@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.bench_train import RESULTS, WORK, _run, ensure_scene
+
+REPO = RESULTS.parent.parent
 
 STUDY = WORK / "study"
 EVAL_VIEWS = ("040", "041")
@@ -144,13 +146,14 @@ class Row:
     command: str = ""
 
 
-REFERENCE = Variant("sweep", "auto default (gaussian MC N_s=4)", SceneVariant("bumpy"), ("--sr", "gaussian"), "default")
+REFERENCE = Variant("sweep", "auto default (gaussian N_s=4)", SceneVariant("bumpy"), ("--sr", "gaussian"), "default")
 """auto as a user runs it: the sweep's centre, the stability matrix's reference, the capacity study's x1."""
 
 
 def _sweep() -> list[Variant]:
     s = SceneVariant("bumpy")
-    out = [Variant("sweep", f"auto gaussian MC N_s={n}", s, ("--sr", "gaussian", "--psf-samples", str(n)), "mc")
+    out = [Variant("sweep", f"auto gaussian MC N_s={n}", s, ("--sr", "gaussian", "--psf-sampler", "mc", "--psf-samples", str(n)),
+                   "mc")
            for n in (1, 5, 10, 15, 25)]
     out += [REFERENCE,
             Variant("sweep", "auto gaussian shared lattice", s, ("--sr", "gaussian", "--psf-sampler", "lattice"),
@@ -192,7 +195,7 @@ def run_variant(var: Variant, budget: float, collect: bool) -> Row:
     ev = ["srvol", "eval", str(run), "--views", ",".join(EVAL_VIEWS), "--no-relit"]
     paper = "paper" in var.train_args
     row = Row(var.study, var.label, var.group, var.scene.key,
-              command=" ".join(train) + ("" if paper else " && " + " ".join(ev)))
+              command=_relative(" ".join(train) + ("" if paper else " && " + " ".join(ev))))
     try:
         if not (collect and (run / "train_summary.json").is_file()):
             error = _train(train)
@@ -214,6 +217,37 @@ def run_variant(var: Variant, budget: float, collect: bool) -> Row:
     except RuntimeError as e:
         row.status = "failed: " + str(e)
     return row
+
+
+def _relative(command: str) -> str:
+    """A recorded command with the checkout's absolute path dropped (run from the repository root)."""
+    return command.replace(str(REPO) + "/", "")
+
+
+def load_rows(name: str) -> list[Row]:
+    """The rows of a committed study table (bench/results/study_NAME.json)."""
+    path = RESULTS / f"study_{name}.json"
+    if not path.is_file():
+        raise SystemExit(f"bench_study: {path} not found; run the study first")
+    rows = [Row(**d) for d in json.loads(path.read_text())]
+    for r in rows:
+        r.command = _strip_checkout(r.command)
+    return rows
+
+
+def recorded_budget(rows: list[Row]) -> float:
+    """The --time-budget the rows were trained with (read back from their commands)."""
+    toks = rows[0].command.split()
+    return float(toks[toks.index("--time-budget") + 1])
+
+
+def _strip_checkout(command: str) -> str:
+    """Commands recorded in another checkout: keep the part from bench/ on."""
+    out = []
+    for tok in command.split(" "):
+        k = tok.find("/bench/work/")
+        out.append(tok[k + 1:] if k > 0 else tok)
+    return " ".join(out)
 
 
 def _train(cmd: list[str]) -> str | None:
@@ -309,7 +343,7 @@ def chart_sweep(rows: list[Row], floor: dict) -> None:
             if r is not None:
                 ax.axhline(r.metrics[key], color=style[:2], linestyle=style[2:], label=r.label)
         if key == "psnr_hr":
-            ax.axhline(floor["psnr_hr"], color="k", linestyle=":", label="bicubic LR (floor)")
+            ax.axhline(floor["psnr_hr"], color="k", linestyle=":", label="bicubic of the test view's LR image (2D)")
         ax.set_xlabel("PSF rays per LR pixel N_s")
         ax.set_ylabel(name)
         ax.grid(alpha=0.3)
@@ -349,35 +383,62 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--budget", type=float, default=120.0, help="training seconds per run (default 120)")
     ap.add_argument("--only", default="sweep,stability,capacity", help="comma list of studies")
-    ap.add_argument("--collect", action="store_true", help="reuse finished runs; rebuild tables and charts")
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--collect", action="store_true", help="reuse finished runs; rebuild tables and charts")
+    mode.add_argument("--from-results", action="store_true",
+                      help="no training: rebuild the tables and charts from bench/results/study_*.json")
     args = ap.parse_args(argv)
-    studies = args.only.split(",")
+    studies = [s for s in args.only.split(",") if s]
+    unknown = set(studies) - {"sweep", "stability", "capacity"}
+    if unknown:
+        ap.error(f"--only: unknown study {', '.join(sorted(unknown))} (sweep, stability, capacity)")
     t0 = time.time()
-    ref = None
-    if "sweep" in studies or "stability" in studies or "capacity" in studies:
-        ref = run_variant(REFERENCE, args.budget, args.collect)
+    budget = args.budget
+    provenance = (["Rebuilt from the recorded rows (`--from-results`, no training): they were measured with the "
+                   "code of the commit that last changed the rows' JSON; `python -m bench.bench_study` re-measures."]
+                  if args.from_results else [])
+    if args.from_results:  # each table keeps its own budget and reference row
+        recorded = {name: load_rows(name) for name in studies}
+        budget_of = lambda name: recorded_budget(recorded[name])  # noqa: E731
+
+        def ref_for(name: str) -> Row:
+            rows = recorded[name] if any(r.group == REFERENCE.group for r in recorded[name]) else load_rows("sweep")
+            return next(r for r in rows if r.group == REFERENCE.group)
+
+        measured = lambda name, variants: recorded[name]  # noqa: E731
+    else:
+        ref = run_variant(REFERENCE, budget, args.collect)
+        budget_of = lambda name: budget  # noqa: E731
+        ref_for = lambda name: ref  # noqa: E731
+        measured = lambda name, variants: [  # noqa: E731
+            ref if v is REFERENCE else run_variant(v, budget, args.collect) for v in variants]
     if "sweep" in studies:
-        rows = [run_variant(v, args.budget, args.collect) if v is not REFERENCE else ref for v in _sweep()]
+        rows = measured("sweep", _sweep())
         floor = bicubic_floor(ensure_scene("bumpy"))
-        write_table("sweep", rows, args.budget, [
-            f"Floor: bicubic-upsampled LR test images, HR PSNR {floor['psnr_hr']:.2f} dB, SSIM {floor['ssim_hr']:.3f}.",
-            "Paper (one scene, days on a GPU): N_s 5 -> 25 moved PSNR 27.68 -> 28.39 dB while time went 26 h -> 75 h."])
+        write_table("sweep", rows, budget_of("sweep"), [
+            f"2D baseline (dotted line in the chart): bicubic upsampling of each held-out view's own LR image, "
+            f"HR PSNR {floor['psnr_hr']:.2f} dB, SSIM {floor['ssim_hr']:.3f}. It sees the test view's LR pixels, "
+            "which no 3D method is given, so it is a reference, not a floor.",
+            "Paper (one scene, days on a GPU): N_s 5 -> 25 moved PSNR 27.68 -> 28.39 dB while time went 26 h -> 75 h.",
+            *provenance])
         chart_sweep(rows, floor)
     if "stability" in studies:
-        rows = [run_variant(v, args.budget, args.collect) for v in _stability()]
-        write_table("stability", rows, args.budget, [
+        rows = measured("stability", _stability())
+        ref = ref_for("stability")
+        write_table("stability", rows, budget_of("stability"), [
             f"Reference (default scene, auto): HR PSNR {_fmt(ref.metrics.get('psnr_hr'), '.2f')} dB, "
             f"normal MAE {_fmt(ref.metrics.get('normal_mae_deg'), '.2f')} deg.",
             "status: ok, or how the run failed -- a collapsed SDF, non-finite metrics or a dark render are "
-            "detected and named, never scored."])
+            "detected and named, never scored. dark pixels: share of foreground pixels rendered near black.",
+            *provenance])
         chart_bars("stability", rows, ref)
     if "capacity" in studies:
-        rows = [ref] + [run_variant(v, args.budget, args.collect) for v in _capacity()]
-        write_table("capacity", rows, args.budget, [
-            "auto x1 is the default run of the sweep; x0.5 / x2 scale its grids, hash table and head widths "
-            "(`srvol train --capacity`). The paper networks are scored by their training log (rendering HR views "
-            "with 5x512 MLPs takes hours on a CPU)."])
-        chart_bars("capacity", rows[1:], ref)
+        rows = measured("capacity", [REFERENCE, *_capacity()])
+        write_table("capacity", rows, budget_of("capacity"), [
+            "auto x1 is auto as a user runs it (the sweep's centre); x0.5 / x2 scale its grids, hash table and "
+            "head widths (`srvol train --capacity`). The paper networks are scored by their training log "
+            "(rendering HR views with 5x512 MLPs takes hours on a CPU).", *provenance])
+        chart_bars("capacity", rows[1:], ref_for("capacity"))
     print(f"study done in {time.time() - t0:.0f} s")
     return 0
 

@@ -74,7 +74,7 @@ class ExportReport:
     cpu_seconds: dict[str, float] = field(default_factory=dict)
     """CPU time of this process (all threads) per stage: wall time is inflated on a shared machine,
     CPU time is not (on 2 uncontended cores wall ~ CPU / 2 .. CPU). The .blend's Blender
-    subprocess is not counted."""
+    subprocess (stage "blend", wall time) is not counted."""
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -184,6 +184,12 @@ def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
             check_not_dark(baked.textures)
         with _Timer(report, "write"):
             report.files = write_asset_files(tmp, mesh, baked.textures, formats)
+        if "blend" in formats:  # last, from the USD, by Blender in a subprocess (timed on its own)
+            from srvol.export.blender import write_blend
+
+            with _Timer(report, "blend"):
+                write_blend(tmp, tmp / FILE_NAMES["blend"], specular_reference(baked.textures))
+            report.files["blend"] = FILE_NAMES["blend"]
         report.seconds["total"] = time.perf_counter() - t_all
         report.cpu_seconds["total"] = time.process_time() - c_all
         stats = report.to_json()
@@ -202,7 +208,8 @@ def _make_readable(root: Path) -> None:
 
 
 def write_asset_files(root: Path, mesh: Mesh, textures, formats: tuple[str, ...]) -> dict[str, str]:
-    """raw/mesh.npz, raw/*.exr, textures/*.png and the asked formats under ``root``."""
+    """raw/mesh.npz, raw/*.exr, textures/*.png and the asked formats under ``root`` (all but
+    .blend, which Blender writes from the USD: see export_fields)."""
     from srvol.export.gltf import write_glb, write_gltf
     from srvol.export.obj import write_obj
     from srvol.export.usd import write_usd, write_usdz
@@ -226,13 +233,8 @@ def write_asset_files(root: Path, mesh: Mesh, textures, formats: tuple[str, ...]
         elif fmt == "obj":
             write_obj(path, mesh, tex)
         elif fmt == "blend":
-            continue  # written last, from the USD, by Blender in a subprocess
+            continue
         files[fmt] = path.name
-    if "blend" in formats:
-        from srvol.export.blender import write_blend
-
-        write_blend(root, root / FILE_NAMES["blend"], f0_ref)
-        files["blend"] = FILE_NAMES["blend"]
     return files
 
 

@@ -89,11 +89,12 @@ class PixelBank:
         return Rays(origins=o.reshape(-1, 3), directions=d.reshape(-1, 3))
 
     def sample(self, n: int, inside: bool, mode: SRMode, psf_samples: int, sigma: float, sr: int,
-               generator: torch.Generator) -> PixelBatch:
+               generator: torch.Generator, antithetic: bool = False) -> PixelBatch:
         """n pixels (in or out of the mask), each estimated by its own rays (groups of one pixel)."""
         pool = self.inside if inside else self.outside
         pick = pool[torch.randint(len(pool), (n,), generator=generator).to(pool.device)]
-        offsets = pixel_offsets(mode, n, psf_samples, sigma, sr, generator=generator).to(self.device)
+        offsets = pixel_offsets(mode, n, psf_samples, sigma, sr, generator=generator,
+                                antithetic=antithetic).to(self.device)
         uv = self.ij[pick][:, None, :] + 0.5 + offsets
         S = offsets.shape[1]
         weights = torch.full((n, 1, S), 1.0 / S, device=self.device)

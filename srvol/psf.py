@@ -6,7 +6,8 @@ deviation ``sigma`` (in LR pixels). This module holds
 * the exact separable operator on a piecewise-constant HR image
   (:func:`blur_decimate`, used by synthesis and by the evaluation), and
 * the sub-pixel ray offsets of the three training variants
-  (:func:`pixel_offsets`): ``gaussian`` (SuperRVol, Monte Carlo from k),
+  (:func:`pixel_offsets`): ``gaussian`` (SuperRVol, Monte Carlo from k, i.i.d. as
+  the paper or in rotated antithetic groups),
   ``box`` (Vol-SR / NeRF-SR: a fixed d x d grid of HR pixel centres) and
   ``none`` (one ray through the pixel centre), and
 * the shared lattice (:func:`lattice_weights`): a patch of LR pixels whose rays,
@@ -71,16 +72,36 @@ def box_offsets(d: int) -> Tensor:
     return torch.stack([x.reshape(-1), y.reshape(-1)], dim=-1)
 
 
+def antithetic_gaussian_offsets(n_pixels: int, n_samples: int, sigma_lr_px: float,
+                                generator: torch.Generator | None = None) -> Tensor:
+    """(n_pixels, n_samples, 2) Gaussian offsets in rotated antithetic groups of four.
+
+    Each group is {g, -g, Jg, -Jg} for one draw g ~ N(0, sigma^2 I) and J the rotation by 90
+    degrees. Every offset is still N(0, sigma^2 I) (the Gaussian is rotation-invariant), so the
+    plain mean is an unbiased estimate of the PSF integral; but for an image that varies
+    linearly across the pixel the group's error is exactly zero, and for a quadratic one it is
+    (|g|^2 / 4) tr(H) instead of a random sum of gradient terms. Four rays then estimate the
+    integral about as well as many i.i.d. ones wherever the HR image is smooth at the PSF's scale.
+    """
+    groups = -(-n_samples // 4)
+    g = torch.randn(n_pixels, groups, 2, generator=generator) * sigma_lr_px
+    j = torch.stack([-g[..., 1], g[..., 0]], dim=-1)
+    return torch.stack([g, -g, j, -j], dim=2).reshape(n_pixels, groups * 4, 2)[:, :n_samples]
+
+
 def pixel_offsets(mode: SRMode, n_pixels: int, n_samples: int, sigma_lr_px: float, sr: int,
-                  generator: torch.Generator | None = None) -> Tensor:
+                  generator: torch.Generator | None = None, antithetic: bool = False) -> Tensor:
     """(n_pixels, S, 2) sub-pixel offsets (LR pixels) of the rays that estimate each LR pixel.
 
-    gaussian: S = n_samples draws from N(0, sigma^2 I) (the paper: 25);
+    gaussian: S = n_samples draws from N(0, sigma^2 I) -- i.i.d. (the paper: 25) or, with
+              ``antithetic``, in rotated antithetic groups (:func:`antithetic_gaussian_offsets`);
     box:      S = sr^2, the fixed grid of HR pixel centres (Vol-SR);
     none:     S = 1, the centre.
     The LR pixel value is the plain mean over the S rays.
     """
     if mode == SRMode.GAUSSIAN:
+        if antithetic:
+            return antithetic_gaussian_offsets(n_pixels, n_samples, sigma_lr_px, generator)
         return torch.randn(n_pixels, n_samples, 2, generator=generator) * sigma_lr_px
     if mode == SRMode.BOX:
         return box_offsets(sr).expand(n_pixels, -1, -1)

@@ -46,7 +46,8 @@ def build_report(run: Path, extra_dirs: list[Path], commands: list[str]) -> str:
     parts.append("<h2>Training</h2>")
     t = cfg["train"]
     rays = ("shared ray lattices over 4x4 LR pixels" if t["sr"] == "gaussian" and t.get("psf_sampler") == "lattice"
-            else f"{t['psf_samples']} rays per LR pixel")
+            else f"{t['psf_samples']} rays per LR pixel" + (" (rotated antithetic groups)"
+                                                              if t["sr"] == "gaussian" and t.get("psf_sampler") == "antithetic" else ""))
     parts.append(f"<p>preset <b>{html.escape(t['preset'])}</b>, PSF model "
                  f"<b>{html.escape(t['sr'])}</b>, {html.escape(rays)}.</p>")
     reasons = cfg["train"].get("reasons") or []

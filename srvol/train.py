@@ -44,8 +44,14 @@ class TrainConfig:
     psf_samples: int = 4
     """gaussian: rays per LR pixel (Monte Carlo) / rays-per-pixel budget of a lattice step."""
     psf_sampler: str = "mc"
-    """gaussian only: "mc" (the paper: psf_samples i.i.d. rays per pixel) or "lattice" (shared,
-    randomly shifted lattice of rays over patch x patch LR pixels)."""
+    """gaussian only: "mc" (the paper: psf_samples i.i.d. rays per pixel), "antithetic" (psf_samples
+    rays per pixel in rotated antithetic groups {g, -g, Jg, -Jg}) or "lattice" (shared, randomly
+    shifted lattice of rays over patch x patch LR pixels)."""
+    psf_warmup: float = 0.0
+    """gaussian per-pixel samplers (mc, antithetic) only: for this fraction of training (time or iterations) each LR pixel
+    gets one ray at a Gaussian-distributed sub-pixel offset and a step takes psf_samples times as
+    many pixels (same rays per step); then psf_samples rays per pixel. The first phase settles the
+    geometry from many pixels; the second resolves the PSF integral. 0 = the paper's schedule."""
     patch: int = 4
     lattice_cell: float = 0.5
     """Lattice spacing in LR pixels."""
@@ -131,6 +137,32 @@ def hr_pixel_size(scene: Scene) -> float:
     return float(np.median(sizes))
 
 
+AUTO_PSF_SAMPLER = "antithetic"
+"""auto: how the Gaussian PSF integral is estimated (TrainConfig.psf_sampler)."""
+
+AUTO_PSF_WARMUP = 0.0
+"""auto: share of training with one PSF ray per pixel (TrainConfig.psf_warmup)."""
+
+MTF_FLOOR = 0.1
+"""Frequencies the PSF attenuates below this contrast are treated as lost (not recoverable by SR)."""
+
+
+def recoverable_cell_hr_px(sigma_hr_px: float) -> float:
+    """Half the shortest period (in HR pixels) that a Gaussian PSF of ``sigma_hr_px`` passes
+    with contrast >= MTF_FLOOR: the finest cell a reconstruction can be supervised at.
+
+    The Gaussian's MTF is exp(-2 pi^2 sigma^2 f^2); it falls to MTF_FLOOR at
+    f = sqrt(ln(1 / MTF_FLOOR) / 2) / (pi sigma) cycles per HR pixel. Finer detail is below
+    1/10 contrast in every LR image, so grid cells finer than this only fit noise (hash
+    collisions and Monte Carlo PSF noise show as grain). Never below one HR pixel.
+    For the default scene (sigma 1.5 HR px): f = 0.23, period 4.4 px, cell 2.2 HR px.
+    """
+    if sigma_hr_px <= 0:
+        return 1.0
+    f = math.sqrt(math.log(1.0 / MTF_FLOOR) / 2.0) / (math.pi * sigma_hr_px)
+    return max(1.0, 0.5 / f)
+
+
 def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0) -> TrainConfig:
     """Capacity derived from the scene: resolution from the HR pixel footprint, PSF samples
     from the PSF width, batch from the object's footprint; reasons are printed and saved.
@@ -140,8 +172,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     """
     hr = hr_pixel_size(scene)
     reasons = [f"HR pixel footprint {hr:.4f} scene units (object distance / focal / sr)"]
-    # Material detail is needed down to one HR pixel: finest hash level = 2 / hr cells.
-    mat_max = int(2 ** math.ceil(math.log2(2.0 / hr)))
+    # Material detail: the finest hash level resolves the shortest period the LR images still carry.
+    detail_px = recoverable_cell_hr_px(scene.info.psf_sigma_lr_px * scene.info.sr_factor)
+    mat_max = int(2 ** math.ceil(math.log2(2.0 / (detail_px * hr))))
     mat_max = max(64, min(mat_max, 2048))
     # Geometry: finest SDF level ~ 6 HR pixels per cell (smoothstep interpolation keeps
     # normals continuous; finer shape detail shows through shading); three levels, each x2.
@@ -154,7 +187,8 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         table_log2 = max(10, base.mat_table_log2 + int(round(3 * math.log2(capacity))))
         hidden = max(8, int(round(base.sdf_hidden * capacity)))
         reasons.append(f"capacity x{capacity:g} of what the scene needs (study setting)")
-    reasons.append(f"material hash grid finest level {mat_max} (cell {2 / mat_max:.4f} vs HR pixel {hr:.4f})")
+    reasons.append(f"material hash grid finest level {mat_max} (cell {2 / mat_max:.4f}; the PSF leaves detail "
+                   f"down to {detail_px:.1f} HR pixels of {hr:.4f})")
     levels = (max(4, fine // 4), max(4, fine // 2), fine)
     reasons.append(f"SDF grids {levels} (finest cell {2 / fine:.4f} ~ {2 / fine / hr:.0f} HR pixels)")
     mode = SRMode(sr)
@@ -168,10 +202,16 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         ns = int(min(16, max(4, math.ceil((sigma / 0.2) ** 2))))
         reasons.append(f"PSF samples {ns} per LR pixel and step (sigma {sigma} LR px)")
         # The shared lattice (--psf-sampler lattice) would use a spacing of ~4/3 sigma, between one
-        # HR pixel and half an LR pixel. Measured at 600 s on the default scene it is not better than
-        # these Monte Carlo rays (38.25 vs 38.39 dB, normals 3.4 vs 3.1 deg: 4x4-pixel patches
-        # give the geometry less varied pixels per step), so Monte Carlo stays the default.
+        # HR pixel and half an LR pixel. Measured at 600 s on the default scene it was not better than
+        # i.i.d. Monte Carlo rays (38.25 vs 38.39 dB, normals 3.4 vs 3.1 deg: 4x4-pixel patches give
+        # the geometry less varied pixels per step); antithetic groups beat both (train_table.md).
         cell = float(min(0.5, max(1.0 / scene.info.sr_factor, 4.0 * sigma / 3.0)))
+        if AUTO_PSF_SAMPLER == "antithetic":
+            reasons.append("PSF rays in rotated antithetic groups {g, -g, Jg, -Jg}: each still drawn from the "
+                           "Gaussian, the group's error is zero where the image varies linearly")
+        if AUTO_PSF_WARMUP > 0:
+            reasons.append(f"first {AUTO_PSF_WARMUP:.0%} of training: 1 PSF ray per pixel, {ns}x the pixels per "
+                           "step (geometry settles from more pixels; then the PSF integral is resolved)")
     elif mode == SRMode.BOX:
         ns = scene.info.sr_factor ** 2
         reasons.append(f"box PSF: {ns} rays per LR pixel (sr {scene.info.sr_factor})")
@@ -186,7 +226,8 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     fields = FieldConfig(kind="grid", sdf_levels=levels, mat_max_res=mat_max, mat_table_log2=table_log2,
                          sdf_hidden=hidden, mat_hidden=hidden)
     return TrainConfig(preset="auto", fields=fields, sampler=SamplerConfig(), sr=sr, psf_samples=ns,
-                       psf_sampler="mc", patch=4, lattice_cell=cell,
+                       psf_warmup=AUTO_PSF_WARMUP if mode == SRMode.GAUSSIAN else 0.0,
+                       psf_sampler=AUTO_PSF_SAMPLER if mode == SRMode.GAUSSIAN else "mc", patch=4, lattice_cell=cell,
                        batch_in=batch_in, batch_out=max(64, batch_in // 2), time_budget=time_budget,
                        reasons=tuple(reasons))
 
@@ -225,8 +266,16 @@ def set_learning_rate(opts, progress: float, cfg: TrainConfig, scale: float) -> 
             g["lr"] = g["base_lr"] * decay * scale
 
 
+def psf_rays_per_pixel(cfg: TrainConfig, stage: int, progress: float) -> int:
+    """Monte Carlo PSF rays per LR pixel at this point of training (see TrainConfig.psf_warmup)."""
+    per_pixel = cfg.psf_sampler in ("mc", "antithetic")
+    if cfg.sr == SRMode.GAUSSIAN.value and per_pixel and stage == 1 and progress < cfg.psf_warmup:
+        return 1
+    return cfg.psf_samples
+
+
 def sample_pixels(bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stage: int,
-                  gen: torch.Generator) -> PixelBatch:
+                  gen: torch.Generator, progress: float = 1.0) -> PixelBatch:
     """The in-mask pixels of one step and their rays: per-pixel rays or shared lattice patches."""
     mode = SRMode(cfg.sr)
     if mode == SRMode.GAUSSIAN and cfg.psf_sampler == "lattice":
@@ -235,15 +284,18 @@ def sample_pixels(bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stag
         n = max(1, round(n_rays / rays_per_patch))
         return bank.sample_patches(n, cfg.patch, cfg.lattice_cell, sigma, gen)
     n_in = cfg.batch_in if stage == 1 else cfg.batch_stage2
-    return bank.sample(n_in, True, mode, cfg.psf_samples, sigma, sr, gen)
+    ns = psf_rays_per_pixel(cfg, stage, progress)
+    return bank.sample(n_in * cfg.psf_samples // ns, True, mode, ns, sigma, sr, gen,
+                       antithetic=cfg.psf_sampler == "antithetic")
 
 
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stage: int,
-                 gen: torch.Generator, intensity: torch.Tensor) -> LossTerms:
-    """L1 on in-mask pixels (PSF estimates) + lambda_e eikonal + lambda_m mask BCE (stage 1 only)."""
+                 gen: torch.Generator, intensity: torch.Tensor, progress: float = 1.0) -> LossTerms:
+    """L1 on in-mask pixels (PSF estimates) + lambda_e eikonal + lambda_m mask BCE (stage 1 only).
+    ``progress`` in [0, 1] (share of the run done) selects the PSF rays per pixel (psf_warmup)."""
     mode = SRMode(cfg.sr)
     train_geo = stage == 1
-    batch = sample_pixels(bank, cfg, sigma, sr, stage, gen)
+    batch = sample_pixels(bank, cfg, sigma, sr, stage, gen, progress)
     rays = batch.rays
     use_mask = train_geo and bank.has_masks and len(bank.outside) > 0
     if use_mask:
@@ -361,7 +413,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                 f"({cfg.batch_stage2} in-mask pixels per step)")
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         intensity = fixed_I if fixed_I is not None else fields.intensity
-        terms = compute_loss(fields, bank, cfg, sigma, sr, state.stage, gen, intensity)
+        terms = compute_loss(fields, bank, cfg, sigma, sr, state.stage, gen, intensity, progress_frac)
         if not torch.isfinite(terms.total):
             state.rollbacks += 1
             if state.rollbacks > 5:

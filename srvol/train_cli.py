@@ -34,12 +34,17 @@ def add_parser(sub) -> None:
     p.add_argument("--sr", choices=SR_MODES, default="gaussian",
                    help="PSF model: gaussian (SuperRVol), box (Vol-SR, d x d HR grid), none (one ray per pixel)")
     p.add_argument("--psf-samples", type=int,
-                   help="--sr gaussian: Monte Carlo rays per LR pixel (the paper's N_s; implies --psf-sampler mc "
-                        "unless given) or the per-pixel ray budget of a lattice step (default: by preset)")
-    p.add_argument("--psf-sampler", choices=("mc", "lattice"),
-                   help="--sr gaussian: 'mc' = N_s random rays per LR pixel drawn from the PSF (paper, fast); "
-                        "'lattice' = one randomly shifted ray lattice shared by 4x4 LR pixels with Gaussian "
-                        "weights (default mc; see README)")
+                   help="--sr gaussian: Monte Carlo rays per LR pixel (the paper's N_s) or the per-pixel ray "
+                        "budget of a lattice step (default: by preset)")
+    p.add_argument("--psf-sampler", choices=("mc", "antithetic", "lattice"),
+                   help="--sr gaussian: 'mc' = N_s i.i.d. rays per LR pixel drawn from the PSF (paper, fast); "
+                        "'antithetic' = the same Gaussian draws in rotated groups {g, -g, Jg, -Jg}, exact for "
+                        "linear image variation; 'lattice' = one randomly shifted ray lattice shared by 4x4 LR "
+                        "pixels with Gaussian weights (default: by preset; see README)")
+    p.add_argument("--psf-warmup", type=float,
+                   help="--sr gaussian (mc, antithetic): share of training, 0..0.85, that uses one PSF ray per LR "
+                        "pixel and N_s times as many pixels per step before switching to N_s rays per pixel "
+                        "(auto: 0.5, fast and paper: 0)")
     p.add_argument("--capacity", type=float, default=1.0,
                    help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
                         "this factor -- for capacity studies (default 1: what the scene needs)")
@@ -82,9 +87,12 @@ def build_config(scene, args):
         if args.psf_samples < 1:
             raise SrvolError(f"--psf-samples {args.psf_samples}: must be >= 1")
         changes["psf_samples"] = args.psf_samples
-        changes["psf_sampler"] = "mc"
     if args.psf_sampler is not None:
         changes["psf_sampler"] = args.psf_sampler
+    if args.psf_warmup is not None:
+        if not (math.isfinite(args.psf_warmup) and 0.0 <= args.psf_warmup <= 0.85):
+            raise SrvolError(f"--psf-warmup {args.psf_warmup}: must be between 0 and 0.85")
+        changes["psf_warmup"] = args.psf_warmup
     if args.sr == "none":
         changes["psf_samples"] = 1
     if args.checkpoint_every is not None:
@@ -133,6 +141,10 @@ def run_train(args) -> int:
         rays = f"shared {k}x{k} lattices over {cfg.patch}x{cfg.patch} LR pixels ({k * k / cfg.patch ** 2:.1f} rays per LR pixel)"
     else:
         rays = f"{cfg.psf_samples} rays per LR pixel"
+        if cfg.sr == "gaussian" and cfg.psf_sampler == "antithetic":
+            rays += " in rotated antithetic groups"
+        if cfg.sr == "gaussian" and cfg.psf_warmup > 0:
+            rays += f" (1 for the first {cfg.psf_warmup:.0%} of training)"
     print(f"preset {cfg.preset}, sr {cfg.sr}, {rays}, "
           f"{cfg.sampler.n_coarse} locating + {cfg.sampler.gradient_samples} gradient samples per ray, "
           f"{n_params / 1e6:.2f} M parameters")

@@ -113,3 +113,42 @@ def test_lattice_estimate_of_a_fine_grating_is_the_psf_integral():
     err_lattice = (est - exact).pow(2).mean().sqrt()
     err_mc = (mc.mean(-1) - exact).pow(2).mean().sqrt()
     assert err_lattice < 0.1 * err_mc  # measured: 0.008 vs 0.27 at 6.25 rays per pixel
+
+
+def test_antithetic_offsets_are_gaussian_draws_in_rotated_groups_of_four():
+    """Each offset is still N(0, sigma^2 I); each group {g, -g, Jg, -Jg} sums to zero, so a pixel's
+    estimate of an image that varies linearly across it is exact."""
+    sigma = 0.375
+    off = pixel_offsets(SRMode.GAUSSIAN, n_pixels=10_000, n_samples=4, sigma_lr_px=sigma, sr=4,
+                        generator=torch.Generator().manual_seed(0), antithetic=True).double()
+    assert off.shape == (10_000, 4, 2)
+    g = off[:, 0]
+    torch.testing.assert_close(off[:, 1], -g)
+    torch.testing.assert_close(off[:, 2], torch.stack([-g[:, 1], g[:, 0]], -1))
+    torch.testing.assert_close(off.sum(1), torch.zeros(10_000, 2, dtype=torch.float64))
+    n = 10_000  # independent draws: one per group
+    assert g.mean(0).abs().max().item() < 5 * sigma / math.sqrt(n)
+    assert (off.reshape(-1, 2).std(0) - sigma).abs().max().item() < 5 * sigma / math.sqrt(2 * n)
+    odd = pixel_offsets(SRMode.GAUSSIAN, n_pixels=3, n_samples=6, sigma_lr_px=sigma, sr=4, antithetic=True)
+    assert odd.shape == (3, 6, 2)  # counts that are not a multiple of 4 keep the leading members
+
+
+@pytest.mark.parametrize("period, max_ratio", [(4.0, 0.7), (1.5, 1.05)])
+def test_antithetic_estimate_is_unbiased_with_less_noise_than_iid(period, max_ratio):
+    """A grating of period 4 LR px and 1.5 LR px (the default scene's grooves): with 4 rays per
+    pixel, the antithetic groups average to the PSF integral; their RMS error is 0.55x i.i.d.
+    Monte Carlo's at period 4 and about the same (0.97x) at 1.5 px, where the phase moves too far
+    within one sigma for the first-order cancellation to matter."""
+    sigma, f, n = 0.375, 1 / period, 20_000
+    g = torch.Generator().manual_seed(1)
+    p = torch.rand(n, 2, generator=g) * period
+    exact = torch.sin(2 * math.pi * f * p[:, 0]) * math.exp(-2 * math.pi ** 2 * sigma ** 2 * f ** 2)
+
+    def estimate(antithetic: bool) -> torch.Tensor:
+        off = pixel_offsets(SRMode.GAUSSIAN, n, 4, sigma, 4, generator=g, antithetic=antithetic)
+        return torch.sin(2 * math.pi * f * (p[:, None, 0] + off[..., 0])).mean(1)
+
+    anti, iid = estimate(True), estimate(False)
+    assert (anti - exact).mean().abs() < 0.005
+    rms = lambda e: (e - exact).pow(2).mean().sqrt()  # noqa: E731
+    assert rms(anti) < max_ratio * rms(iid)

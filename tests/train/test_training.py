@@ -1,6 +1,7 @@
 """Training as worked examples: a few steps lower the loss (each preset), resume after a kill,
 a non-finite loss rolls back, a collapsed SDF is reported."""
 import json
+import math
 import os
 import signal
 import subprocess
@@ -17,8 +18,8 @@ from srvol.errors import SrvolError
 from srvol.fields import SceneFields
 from srvol.pixels import PixelBank
 from srvol.render import SamplerConfig
-from srvol.train import (TrainConfig, auto_config, check_not_collapsed, compute_loss, fast_config, paper_config,
-                         train)
+from srvol.train import (MTF_FLOOR, TrainConfig, auto_config, check_not_collapsed, compute_loss, fast_config,
+                         paper_config, psf_rays_per_pixel, recoverable_cell_hr_px, sample_pixels, train)
 
 
 def _tiny(cfg: TrainConfig, iters: int) -> TrainConfig:
@@ -176,9 +177,39 @@ def test_auto_capacity_scales_the_scene_derived_model(default_scene):
     for c in (0.5, 1.0, 2.0):
         cfg = auto_config(scene, "gaussian", 60.0, capacity=c)
         sizes[c] = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
-        assert cfg.psf_sampler == "mc"
+        assert cfg.psf_sampler == "antithetic"
         assert (c != 1.0) == any("capacity x" in r for r in cfg.reasons)
     assert sizes[0.5] < sizes[1.0] < sizes[2.0]
+
+
+def test_psf_warmup_trades_rays_per_pixel_for_pixels_at_equal_rays(default_scene):
+    """--psf-warmup 0.5: for the first half, 1 Gaussian-offset ray per pixel and 4x the pixels; then
+    4 rays per pixel. Stage 2 and the other SR modes never warm up; the rays per step stay the same."""
+    scene = load_scene(default_scene)
+    cfg = replace(auto_config(scene, "gaussian", 60.0), psf_warmup=0.5)
+    assert cfg.psf_samples == 4
+    assert [psf_rays_per_pixel(cfg, 1, p) for p in (0.0, 0.49, 0.5, 0.9)] == [1, 1, 4, 4]
+    assert psf_rays_per_pixel(cfg, 2, 0.1) == 4
+    assert auto_config(scene, "none", 60.0).psf_warmup == 0.0
+    assert psf_rays_per_pixel(replace(cfg, psf_sampler="lattice"), 1, 0.0) == 4
+    bank = PixelBank(scene, torch.device("cpu"))
+    sig, sr = scene.info.psf_sigma_lr_px, scene.info.sr_factor
+    early = sample_pixels(bank, cfg, sig, sr, 1, torch.Generator().manual_seed(0), progress=0.1)
+    late = sample_pixels(bank, cfg, sig, sr, 1, torch.Generator().manual_seed(0), progress=0.6)
+    assert len(early.target) == 4 * len(late.target) == 4 * cfg.batch_in
+    assert early.n_rays == late.n_rays == cfg.batch_in * 4
+
+
+def test_finest_material_cell_follows_the_psf_passband():
+    """A Gaussian PSF of sigma = 1.5 HR pixels (the default scene: 0.375 LR px x sr 4) keeps 10%
+    contrast up to f = sqrt(ln 10 / 2) / (1.5 pi) = 0.228 cycles per HR pixel: a period of 4.4 HR
+    pixels, so the finest useful grid cell is 2.2 HR pixels. A sharp camera needs one HR pixel."""
+    cell = recoverable_cell_hr_px(1.5)
+    assert abs(cell - 2.196) < 0.01
+    f = 0.5 / cell
+    assert abs(math.exp(-2 * math.pi ** 2 * 1.5 ** 2 * f ** 2) - MTF_FLOOR) < 1e-9
+    assert recoverable_cell_hr_px(0.0) == 1.0 and recoverable_cell_hr_px(0.3) == 1.0
+    assert recoverable_cell_hr_px(3.0) > cell
 
 
 def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
