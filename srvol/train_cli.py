@@ -40,11 +40,11 @@ def add_parser(sub) -> None:
                    help="--sr gaussian: 'mc' = N_s i.i.d. rays per LR pixel drawn from the PSF (paper, fast); "
                         "'antithetic' = the same Gaussian draws in rotated groups {g, -g, Jg, -Jg}, exact for "
                         "linear image variation; 'lattice' = one randomly shifted ray lattice shared by 4x4 LR "
-                        "pixels with Gaussian weights (default: by preset; see README)")
+                        "pixels with Gaussian weights (default: auto antithetic, fast and paper mc; see README)")
     p.add_argument("--psf-warmup", type=float,
                    help="--sr gaussian (mc, antithetic): share of training, 0..0.85, that uses one PSF ray per LR "
                         "pixel and N_s times as many pixels per step before switching to N_s rays per pixel "
-                        "(auto: 0.5, fast and paper: 0)")
+                        "(default 0 = off: at 600 s it measured no gain, bench/results/train_table.md)")
     p.add_argument("--capacity", type=float, default=1.0,
                    help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
                         "this factor -- for capacity studies (default 1: what the scene needs)")
