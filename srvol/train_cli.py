@@ -99,6 +99,9 @@ def build_config(scene, args):
         changes["checkpoint_every"] = max(1, args.checkpoint_every)
     if args.time_budget <= 0 and args.iters is None:
         raise SrvolError("--time-budget must be > 0 (or give --iters)")
+    if args.psf_samples is not None and args.sr == "gaussian":
+        changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {cfg.batch_in} in-mask pixels "
+                                            f"per step x {args.psf_samples} rays",)
     return replace(cfg, **changes)
 
 

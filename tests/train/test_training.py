@@ -217,3 +217,18 @@ def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
         p = _srvol("train", str(default_scene), "--out", str(tmp_path / "r"), "--iters", "1", *args)
         _, err = p.communicate(timeout=60)
         assert p.returncode == 2 and err.count("\n") == 1 and "--capacity" in err
+
+
+def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
+    """auto derives N_s = 4 for the default scene; --psf-samples 2 keeps auto's sampler and pixels
+    per step, and the printed reasons say what was asked instead of the derived count."""
+    import argparse
+
+    from srvol.train_cli import add_parser, build_config
+
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+    args = ap.parse_args(["train", str(default_scene), "--out", "unused", "--psf-samples", "2"])
+    cfg = build_config(load_scene(default_scene), args)
+    assert (cfg.psf_samples, cfg.psf_sampler) == (2, "antithetic")
+    assert cfg.reasons[-1] == f"--psf-samples 2 (asked): {cfg.batch_in} in-mask pixels per step x 2 rays"
