@@ -31,8 +31,6 @@ import numpy as np
 
 from bench.bench_train import RESULTS, WORK, _run, ensure_scene
 
-REPO = RESULTS.parent.parent
-
 STUDY = WORK / "study"
 EVAL_VIEWS = ("040", "041")
 METRICS = ("psnr_hr", "ssim_hr", "psnr_hr_masked", "normal_mae_deg", "albedo_psnr", "chamfer", "dark_fraction")
@@ -195,7 +193,7 @@ def run_variant(var: Variant, budget: float, collect: bool) -> Row:
     ev = ["srvol", "eval", str(run), "--views", ",".join(EVAL_VIEWS), "--no-relit"]
     paper = "paper" in var.train_args
     row = Row(var.study, var.label, var.group, var.scene.key,
-              command=_relative(" ".join(train) + ("" if paper else " && " + " ".join(ev))))
+              command=_strip_checkout(" ".join(train) + ("" if paper else " && " + " ".join(ev))))
     try:
         if not (collect and (run / "train_summary.json").is_file()):
             error = _train(train)
@@ -219,11 +217,6 @@ def run_variant(var: Variant, budget: float, collect: bool) -> Row:
     return row
 
 
-def _relative(command: str) -> str:
-    """A recorded command with the checkout's absolute path dropped (run from the repository root)."""
-    return command.replace(str(REPO) + "/", "")
-
-
 def load_rows(name: str) -> list[Row]:
     """The rows of a committed study table (bench/results/study_NAME.json)."""
     path = RESULTS / f"study_{name}.json"
@@ -242,7 +235,8 @@ def recorded_budget(rows: list[Row]) -> float:
 
 
 def _strip_checkout(command: str) -> str:
-    """Commands recorded in another checkout: keep the part from bench/ on."""
+    """A command with the checkout's absolute path dropped from its bench/work/ paths (run from the
+    repository root): when recording a row, and for rows recorded in another checkout."""
     out = []
     for tok in command.split(" "):
         k = tok.find("/bench/work/")

@@ -148,17 +148,12 @@ def main(argv=None) -> int:
 
 
 def psf_rays(run: Path) -> str:
-    """How the run estimated each LR pixel, from its saved config: '4 antithetic', '25 i.i.d.', ..."""
-    t = json.loads((run / "config.json").read_text())["train"]
-    if t["sr"] == "none":
-        return "1 (pixel centre)"
-    if t["sr"] == "box":
-        return f"{t['psf_samples']} (box grid)"
-    if t.get("psf_sampler") == "lattice":
-        return "shared lattice"
-    kind = "antithetic" if t.get("psf_sampler") == "antithetic" else "i.i.d."
-    warm = f", 1 for the first {t['psf_warmup']:.0%}" if t.get("psf_warmup", 0) > 0 else ""
-    return f"{t['psf_samples']} {kind}{warm}"
+    """How the run estimated each LR pixel, from its saved config (the words `srvol train` prints)."""
+    from srvol.checkpoint import read_config
+    from srvol.train import TrainConfig, describe_psf_rays
+
+    config = read_config(run)
+    return describe_psf_rays(TrainConfig.from_json(config["train"]), config["scene"]["psf_sigma_lr_px"])
 
 
 def train_only_row(run: Path, args, preset: str, sr: str, wall: float, rss: float, command: str) -> dict:
@@ -189,7 +184,7 @@ def write_results(rows: list[dict], args) -> None:
     (RESULTS / "train_table.json").write_text(json.dumps(rows, indent=1))
     ref = next((r for r in rows if r["sr"] == "none" and r["preset"] == "auto" and "error" not in r), None)
     lines = [f"# Training: {args.scene}, budget {args.budget:.0f} s per run (2-core CPU)", "",
-             "| preset | sr | PSF rays per LR pixel | HR PSNR | SSIM | masked PSNR | LR PSNR | normal MAE (deg) | "
+             "| preset | sr | PSF rays | HR PSNR | SSIM | masked PSNR | LR PSNR | normal MAE (deg) | "
              "albedo PSNR | relit PSNR | Chamfer | iterations | train s | peak RSS GiB | vs noSR |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:

@@ -137,12 +137,6 @@ def hr_pixel_size(scene: Scene) -> float:
     return float(np.median(sizes))
 
 
-AUTO_PSF_SAMPLER = "antithetic"
-"""auto: how the Gaussian PSF integral is estimated (TrainConfig.psf_sampler)."""
-
-AUTO_PSF_WARMUP = 0.0
-"""auto: share of training with one PSF ray per pixel (TrainConfig.psf_warmup)."""
-
 MTF_FLOOR = 0.1
 """Frequencies the PSF attenuates below this contrast are treated as lost (not recoverable by SR)."""
 
@@ -206,12 +200,8 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         # i.i.d. Monte Carlo rays (38.25 vs 38.39 dB, normals 3.4 vs 3.1 deg: 4x4-pixel patches give
         # the geometry less varied pixels per step); antithetic groups beat both (train_table.md).
         cell = float(min(0.5, max(1.0 / scene.info.sr_factor, 4.0 * sigma / 3.0)))
-        if AUTO_PSF_SAMPLER == "antithetic":
-            reasons.append("PSF rays in rotated antithetic groups {g, -g, Jg, -Jg}: each still drawn from the "
-                           "Gaussian, the group's error is zero where the image varies linearly")
-        if AUTO_PSF_WARMUP > 0:
-            reasons.append(f"first {AUTO_PSF_WARMUP:.0%} of training: 1 PSF ray per pixel, {ns}x the pixels per "
-                           "step (geometry settles from more pixels; then the PSF integral is resolved)")
+        reasons.append("PSF rays in rotated antithetic groups {g, -g, Jg, -Jg}: each still drawn from the "
+                       "Gaussian, the group's error is zero where the image varies linearly")
     elif mode == SRMode.BOX:
         ns = scene.info.sr_factor ** 2
         reasons.append(f"box PSF: {ns} rays per LR pixel (sr {scene.info.sr_factor})")
@@ -226,8 +216,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     fields = FieldConfig(kind="grid", sdf_levels=levels, mat_max_res=mat_max, mat_table_log2=table_log2,
                          sdf_hidden=hidden, mat_hidden=hidden)
     return TrainConfig(preset="auto", fields=fields, sampler=SamplerConfig(), sr=sr, psf_samples=ns,
-                       psf_warmup=AUTO_PSF_WARMUP if mode == SRMode.GAUSSIAN else 0.0,
-                       psf_sampler=AUTO_PSF_SAMPLER if mode == SRMode.GAUSSIAN else "mc", patch=4, lattice_cell=cell,
+                       psf_sampler="antithetic" if mode == SRMode.GAUSSIAN else "mc", patch=4, lattice_cell=cell,
                        batch_in=batch_in, batch_out=max(64, batch_in // 2), time_budget=time_budget,
                        reasons=tuple(reasons))
 
@@ -264,6 +253,19 @@ def set_learning_rate(opts, progress: float, cfg: TrainConfig, scale: float) -> 
     for opt in opts:
         for g in opt.param_groups:
             g["lr"] = g["base_lr"] * decay * scale
+
+
+def describe_psf_rays(cfg: TrainConfig, sigma_lr_px: float) -> str:
+    """How each LR pixel is estimated, in words (printed by train, shown by report and the benchmark)."""
+    if cfg.sr == SRMode.GAUSSIAN.value and cfg.psf_sampler == "lattice":
+        k, p = lattice_size(cfg.patch, cfg.lattice_cell, sigma_lr_px), cfg.patch
+        return f"shared {k}x{k} lattices over {p}x{p} LR pixels ({k * k / p ** 2:.1f} rays per LR pixel)"
+    text = f"{cfg.psf_samples} {'ray' if cfg.psf_samples == 1 else 'rays'} per LR pixel"
+    if cfg.sr == SRMode.GAUSSIAN.value and cfg.psf_sampler == "antithetic":
+        text += " in rotated antithetic groups"
+    if cfg.sr == SRMode.GAUSSIAN.value and cfg.psf_warmup > 0:
+        text += f" (1 for the first {cfg.psf_warmup:.0%} of training)"
+    return text
 
 
 def psf_rays_per_pixel(cfg: TrainConfig, stage: int, progress: float) -> int:

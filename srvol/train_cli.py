@@ -87,6 +87,9 @@ def build_config(scene, args):
         if args.psf_samples < 1:
             raise SrvolError(f"--psf-samples {args.psf_samples}: must be >= 1")
         changes["psf_samples"] = args.psf_samples
+        if args.sr == "gaussian":
+            changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {cfg.batch_in} in-mask "
+                                                f"pixels per step x {args.psf_samples} rays",)
     if args.psf_sampler is not None:
         changes["psf_sampler"] = args.psf_sampler
     if args.psf_warmup is not None:
@@ -99,16 +102,13 @@ def build_config(scene, args):
         changes["checkpoint_every"] = max(1, args.checkpoint_every)
     if args.time_budget <= 0 and args.iters is None:
         raise SrvolError("--time-budget must be > 0 (or give --iters)")
-    if args.psf_samples is not None and args.sr == "gaussian":
-        changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {cfg.batch_in} in-mask pixels "
-                                            f"per step x {args.psf_samples} rays",)
     return replace(cfg, **changes)
 
 
 def run_train(args) -> int:
     from srvol.checkpoint import CONFIG_VERSION, read_config
     from srvol.data import load_scene
-    from srvol.train import TrainConfig, hr_pixel_size, train
+    from srvol.train import TrainConfig, describe_psf_rays, hr_pixel_size, train
 
     t0 = time.time()
     if args.device == "cuda" and not torch.cuda.is_available():
@@ -137,18 +137,7 @@ def run_train(args) -> int:
     from srvol.fields import SceneFields
 
     n_params = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
-    if cfg.sr == "gaussian" and cfg.psf_sampler == "lattice":
-        from srvol.psf import lattice_size
-
-        k = lattice_size(cfg.patch, cfg.lattice_cell, scene.info.psf_sigma_lr_px)
-        rays = f"shared {k}x{k} lattices over {cfg.patch}x{cfg.patch} LR pixels ({k * k / cfg.patch ** 2:.1f} rays per LR pixel)"
-    else:
-        rays = f"{cfg.psf_samples} rays per LR pixel"
-        if cfg.sr == "gaussian" and cfg.psf_sampler == "antithetic":
-            rays += " in rotated antithetic groups"
-        if cfg.sr == "gaussian" and cfg.psf_warmup > 0:
-            rays += f" (1 for the first {cfg.psf_warmup:.0%} of training)"
-    print(f"preset {cfg.preset}, sr {cfg.sr}, {rays}, "
+    print(f"preset {cfg.preset}, sr {cfg.sr}, {describe_psf_rays(cfg, scene.info.psf_sigma_lr_px)}, "
           f"{cfg.sampler.n_coarse} locating + {cfg.sampler.gradient_samples} gradient samples per ray, "
           f"{n_params / 1e6:.2f} M parameters")
     print(f"  {cfg.fields.parameter_summary()}")
