@@ -5,7 +5,7 @@ import importlib
 import sys
 import time
 
-BENCHES = ("bench.bench_synth", "bench.bench_train", "bench.bench_export", "bench.bench_relight",
+BENCHES = ("bench.bench_synth", "bench.bench_train", "bench.bench_stage2", "bench.bench_export", "bench.bench_relight",
            "bench.bench_study")
 
 

@@ -173,7 +173,7 @@ def _neural_relit_fn(fields):
 # ----------------------------------------------------------------------------- bench
 
 BENCHES = {"all": "bench.run_all", "synth": "bench.bench_synth", "train": "bench.bench_train",
-           "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study"}
+           "stage2": "bench.bench_stage2", "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study"}
 
 
 def _add_bench(sub) -> None:
@@ -183,7 +183,7 @@ def _add_bench(sub) -> None:
                                    "'all' (= make bench) takes about two hours on 2 cores. Arguments after the "
                                    "name go to the benchmark, e.g. `srvol bench study --budget 120 --only sweep`.")
     p.add_argument("which", nargs="?", default="all", choices=tuple(BENCHES),
-                   help="synth, train (SR vs noSR vs Vol-SR, paper), export, relight, study (N_s sweep, "
+                   help="synth, train (SR vs noSR vs Vol-SR, paper), stage2 (stage-2 PSF samplers on the train runs), export, relight, study (N_s sweep, "
                         "stability, capacity) or all (default)")
     p.add_argument("args", nargs=argparse.REMAINDER, help="passed on to the benchmark")
     p.set_defaults(func=_run_bench)

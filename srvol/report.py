@@ -34,6 +34,24 @@ def _md_table(path: Path) -> str:
     return f"<pre>{html.escape(path.read_text())}</pre>"
 
 
+def _psf_rays_words(t: dict) -> str:
+    """A run's PSF rays in words, from its saved config (srvol.train.describe_psf_rays has the
+    exact counts; it is not imported here to keep this command free of torch)."""
+    gaussian = t["sr"] == "gaussian"
+
+    def words(sampler: str | None) -> str:
+        if gaussian and sampler == "lattice":
+            return "shared ray lattices over 4x4 LR pixels"
+        return f"{t['psf_samples']} rays per LR pixel" + (" (rotated antithetic groups)"
+                                                          if gaussian and sampler == "antithetic" else "")
+
+    text = words(t.get("psf_sampler"))
+    second = t.get("stage2_psf_sampler") or t.get("psf_sampler")
+    if gaussian and second != t.get("psf_sampler") and t.get("stage2_fraction", 0) > 0:
+        text += f"; stage 2: {words(second)}"
+    return text
+
+
 def build_report(run: Path, extra_dirs: list[Path], commands: list[str]) -> str:
     if not (run / "config.json").is_file():
         raise SrvolError(f"{run}: not a training run (no config.json)")
@@ -45,9 +63,7 @@ def build_report(run: Path, extra_dirs: list[Path], commands: list[str]) -> str:
     cfg = json.loads((run / "config.json").read_text())
     parts.append("<h2>Training</h2>")
     t = cfg["train"]
-    rays = ("shared ray lattices over 4x4 LR pixels" if t["sr"] == "gaussian" and t.get("psf_sampler") == "lattice"
-            else f"{t['psf_samples']} rays per LR pixel" + (" (rotated antithetic groups)"
-                                                              if t["sr"] == "gaussian" and t.get("psf_sampler") == "antithetic" else ""))
+    rays = _psf_rays_words(t)
     parts.append(f"<p>preset <b>{html.escape(t['preset'])}</b>, PSF model "
                  f"<b>{html.escape(t['sr'])}</b>, {html.escape(rays)}.</p>")
     reasons = cfg["train"].get("reasons") or []

@@ -52,6 +52,11 @@ class TrainConfig:
     gets one ray at a Gaussian-distributed sub-pixel offset and a step takes psf_samples times as
     many pixels (same rays per step); then psf_samples rays per pixel. The first phase settles the
     geometry from many pixels; the second resolves the PSF integral. 0 = the paper's schedule."""
+    stage2_psf_sampler: str = ""
+    """gaussian only: the sampler of stage 2 (geometry frozen), "" = psf_sampler. A lattice suits
+    stage 2: its deterministic Gaussian weights give the BRDF low-noise gradients, and the
+    argument against it in stage 1 (4x4-pixel patches show the geometry fewer, less varied
+    pixels per step) no longer applies."""
     patch: int = 4
     lattice_cell: float = 0.5
     """Lattice spacing in LR pixels."""
@@ -202,6 +207,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         cell = float(min(0.5, max(1.0 / scene.info.sr_factor, 4.0 * sigma / 3.0)))
         reasons.append("PSF rays in rotated antithetic groups {g, -g, Jg, -Jg}: each still drawn from the "
                        "Gaussian, the group's error is zero where the image varies linearly")
+        reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
+                       "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run: +0.53 dB HR "
+                       "PSNR, vs +0.15 dB with antithetic rays and +0.0 dB for noSR)")
     elif mode == SRMode.BOX:
         ns = scene.info.sr_factor ** 2
         reasons.append(f"box PSF: {ns} rays per LR pixel (sr {scene.info.sr_factor})")
@@ -211,13 +219,17 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    for v in scene.train_views()))
     # Rays per step bounded so that one step stays ~0.1-0.2 s on 2 cores.
     batch_in = int(max(64, min(512, 512 // ns)))
-    reasons.append(f"{n_in} in-mask training pixels; {batch_in} per step x {ns} rays")
+    batch_stage2 = int(max(64, 700 // ns))
+    reasons.append(f"{n_in} in-mask training pixels; {batch_in} per step x {ns} rays "
+                   f"(stage 2: {batch_stage2 * ns} rays per step)")
     reasons.append(f"time budget {time_budget:.0f} s for both stages")
     fields = FieldConfig(kind="grid", sdf_levels=levels, mat_max_res=mat_max, mat_table_log2=table_log2,
                          sdf_hidden=hidden, mat_hidden=hidden)
     return TrainConfig(preset="auto", fields=fields, sampler=SamplerConfig(), sr=sr, psf_samples=ns,
-                       psf_sampler="antithetic" if mode == SRMode.GAUSSIAN else "mc", patch=4, lattice_cell=cell,
-                       batch_in=batch_in, batch_out=max(64, batch_in // 2), time_budget=time_budget,
+                       psf_sampler="antithetic" if mode == SRMode.GAUSSIAN else "mc",
+                       stage2_psf_sampler="lattice" if mode == SRMode.GAUSSIAN else "", patch=4, lattice_cell=cell,
+                       batch_in=batch_in, batch_out=max(64, batch_in // 2), batch_stage2=batch_stage2,
+                       time_budget=time_budget,
                        reasons=tuple(reasons))
 
 
@@ -255,16 +267,30 @@ def set_learning_rate(opts, progress: float, cfg: TrainConfig, scale: float) -> 
             g["lr"] = g["base_lr"] * decay * scale
 
 
+def psf_sampler_of_stage(cfg: TrainConfig, stage: int) -> str:
+    """The PSF sampler in use in ``stage`` (1 or 2)."""
+    return cfg.stage2_psf_sampler if stage == 2 and cfg.stage2_psf_sampler else cfg.psf_sampler
+
+
 def describe_psf_rays(cfg: TrainConfig, sigma_lr_px: float) -> str:
     """How each LR pixel is estimated, in words (printed by train, shown by report and the benchmark)."""
-    if cfg.sr == SRMode.GAUSSIAN.value and cfg.psf_sampler == "lattice":
-        k, p = lattice_size(cfg.patch, cfg.lattice_cell, sigma_lr_px), cfg.patch
-        return f"shared {k}x{k} lattices over {p}x{p} LR pixels ({k * k / p ** 2:.1f} rays per LR pixel)"
-    text = f"{cfg.psf_samples} {'ray' if cfg.psf_samples == 1 else 'rays'} per LR pixel"
-    if cfg.sr == SRMode.GAUSSIAN.value and cfg.psf_sampler == "antithetic":
-        text += " in rotated antithetic groups"
-    if cfg.sr == SRMode.GAUSSIAN.value and cfg.psf_warmup > 0:
+    gaussian = cfg.sr == SRMode.GAUSSIAN.value
+
+    def words(sampler: str) -> str:
+        if gaussian and sampler == "lattice":
+            k, p = lattice_size(cfg.patch, cfg.lattice_cell, sigma_lr_px), cfg.patch
+            return f"shared {k}x{k} lattices over {p}x{p} LR pixels ({k * k / p ** 2:.1f} rays per LR pixel)"
+        text = f"{cfg.psf_samples} {'ray' if cfg.psf_samples == 1 else 'rays'} per LR pixel"
+        if gaussian and sampler == "antithetic":
+            text += " in rotated antithetic groups"
+        return text
+
+    text = words(cfg.psf_sampler)
+    if gaussian and cfg.psf_warmup > 0:
         text += f" (1 for the first {cfg.psf_warmup:.0%} of training)"
+    second = psf_sampler_of_stage(cfg, 2)
+    if gaussian and second != cfg.psf_sampler and cfg.stage2_fraction > 0:
+        text += f"; stage 2: {words(second)}"
     return text
 
 
@@ -280,7 +306,8 @@ def sample_pixels(bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stag
                   gen: torch.Generator, progress: float = 1.0) -> PixelBatch:
     """The in-mask pixels of one step and their rays: per-pixel rays or shared lattice patches."""
     mode = SRMode(cfg.sr)
-    if mode == SRMode.GAUSSIAN and cfg.psf_sampler == "lattice":
+    sampler = psf_sampler_of_stage(cfg, stage)
+    if mode == SRMode.GAUSSIAN and sampler == "lattice":
         rays_per_patch = lattice_size(cfg.patch, cfg.lattice_cell, sigma) ** 2
         n_rays = cfg.batch_in * cfg.psf_samples if stage == 1 else cfg.batch_stage2 * cfg.psf_samples
         n = max(1, round(n_rays / rays_per_patch))
@@ -288,7 +315,7 @@ def sample_pixels(bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stag
     n_in = cfg.batch_in if stage == 1 else cfg.batch_stage2
     ns = psf_rays_per_pixel(cfg, stage, progress)
     return bank.sample(n_in * cfg.psf_samples // ns, True, mode, ns, sigma, sr, gen,
-                       antithetic=cfg.psf_sampler == "antithetic")
+                       antithetic=sampler == "antithetic")
 
 
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stage: int,

@@ -41,6 +41,11 @@ def add_parser(sub) -> None:
                         "'antithetic' = the same Gaussian draws in rotated groups {g, -g, Jg, -Jg}, exact for "
                         "linear image variation; 'lattice' = one randomly shifted ray lattice shared by 4x4 LR "
                         "pixels with Gaussian weights (default: auto antithetic, fast and paper mc; see README)")
+    p.add_argument("--stage2-psf-sampler", choices=("mc", "antithetic", "lattice"),
+                   help="--sr gaussian: the sampler of stage 2 (geometry frozen, BRDF refined); default: auto "
+                        "lattice (low-noise Gaussian weights for the BRDF), otherwise the --psf-sampler of stage 1")
+    p.add_argument("--stage2-fraction", type=float,
+                   help="share of the run (time budget or --iters), 0..0.9, spent in stage 2 (default 0.15)")
     p.add_argument("--psf-warmup", type=float,
                    help="--sr gaussian (mc, antithetic): share of training, 0..0.85, that uses one PSF ray per LR "
                         "pixel and N_s times as many pixels per step before switching to N_s rays per pixel "
@@ -92,6 +97,13 @@ def build_config(scene, args):
                                                 f"pixels per step x {args.psf_samples} rays",)
     if args.psf_sampler is not None:
         changes["psf_sampler"] = args.psf_sampler
+        changes["stage2_psf_sampler"] = ""  # the asked sampler serves both stages unless stage 2's is asked too
+    if args.stage2_psf_sampler is not None:
+        changes["stage2_psf_sampler"] = args.stage2_psf_sampler
+    if args.stage2_fraction is not None:
+        if not (math.isfinite(args.stage2_fraction) and 0.0 <= args.stage2_fraction <= 0.9):
+            raise SrvolError(f"--stage2-fraction {args.stage2_fraction}: must be between 0 and 0.9")
+        changes["stage2_fraction"] = args.stage2_fraction
     if args.psf_warmup is not None:
         if not (math.isfinite(args.psf_warmup) and 0.0 <= args.psf_warmup <= 0.85):
             raise SrvolError(f"--psf-warmup {args.psf_warmup}: must be between 0 and 0.85")
@@ -152,7 +164,16 @@ def run_train(args) -> int:
     atomic_write_text(run / "train_summary.json", json.dumps(
         {"iterations": summary.iterations, "train_seconds": round(summary.train_seconds, 2),
          "command_seconds": round(time.time() - t0, 2), "final_train_psnr": summary.final_psnr,
-         "rollbacks": summary.rollbacks, "parameters": n_params}, indent=1))
+         "rollbacks": summary.rollbacks, "parameters": n_params, "peak_rss_gib": _peak_rss_gib()}, indent=1))
     print(f"trained {summary.iterations} iterations in {summary.train_seconds:.0f} s "
           f"(train PSNR {summary.final_psnr:.2f} dB) -> {run}")
     return 0
+
+
+def _peak_rss_gib() -> float | None:
+    """Peak resident memory of this process so far (GiB); None where the OS does not say."""
+    try:
+        import resource
+    except ImportError:  # not on Windows
+        return None
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20, 3)

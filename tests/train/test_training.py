@@ -17,9 +17,11 @@ from srvol.data import load_scene
 from srvol.errors import SrvolError
 from srvol.fields import SceneFields
 from srvol.pixels import PixelBank
+from srvol.psf import lattice_size
 from srvol.render import SamplerConfig
-from srvol.train import (MTF_FLOOR, TrainConfig, auto_config, check_not_collapsed, compute_loss, fast_config,
-                         paper_config, psf_rays_per_pixel, recoverable_cell_hr_px, sample_pixels, train)
+from srvol.train import (MTF_FLOOR, TrainConfig, auto_config, check_not_collapsed, compute_loss, describe_psf_rays,
+                         fast_config, paper_config, psf_rays_per_pixel, psf_sampler_of_stage, recoverable_cell_hr_px,
+                         sample_pixels, train)
 
 
 def _tiny(cfg: TrainConfig, iters: int) -> TrainConfig:
@@ -232,3 +234,39 @@ def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
     cfg = build_config(load_scene(default_scene), args)
     assert (cfg.psf_samples, cfg.psf_sampler) == (2, "antithetic")
     assert cfg.reasons[-1] == f"--psf-samples 2 (asked): {cfg.batch_in} in-mask pixels per step x 2 rays"
+
+
+def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_scene):
+    """auto --sr gaussian: stage 1 estimates each pixel from its own 4 antithetic rays (varied pixels
+    for the geometry); stage 2 (geometry frozen) from shared lattices with Gaussian weights, at the
+    same rays per step as noSR's stage 2. --psf-sampler alone sets both stages; --stage2-psf-sampler
+    sets stage 2."""
+    import argparse
+
+    from srvol.train_cli import add_parser, build_config
+
+    scene = load_scene(default_scene)
+    cfg = auto_config(scene, "gaussian", 60.0)
+    assert (psf_sampler_of_stage(cfg, 1), psf_sampler_of_stage(cfg, 2)) == ("antithetic", "lattice")
+    bank = PixelBank(scene, torch.device("cpu"))
+    sig, sr = scene.info.psf_sigma_lr_px, scene.info.sr_factor
+    one = sample_pixels(bank, cfg, sig, sr, 1, torch.Generator().manual_seed(0))
+    two = sample_pixels(bank, cfg, sig, sr, 2, torch.Generator().manual_seed(0))
+    assert one.n_rays == 4 * len(one.target)  # 4 rays of its own per pixel
+    k = lattice_size(cfg.patch, cfg.lattice_cell, sig)  # one k x k lattice serves 4x4 neighbouring pixels
+    assert two.n_rays == len(two.target) // cfg.patch ** 2 * k * k
+    none = auto_config(scene, "none", 60.0)
+    assert abs(two.n_rays - none.batch_stage2) <= 0.2 * none.batch_stage2
+    assert "stage 2: shared" in describe_psf_rays(cfg, sig)
+
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+
+    def cfg_of(*extra):
+        return build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "unused", *extra]))
+
+    assert psf_sampler_of_stage(cfg_of("--psf-sampler", "mc"), 2) == "mc"
+    c = cfg_of("--psf-sampler", "mc", "--stage2-psf-sampler", "antithetic", "--stage2-fraction", "0.3")
+    assert (psf_sampler_of_stage(c, 1), psf_sampler_of_stage(c, 2), c.stage2_fraction) == ("mc", "antithetic", 0.3)
+    with pytest.raises(SrvolError, match="--stage2-fraction"):
+        cfg_of("--stage2-fraction", "1.5")
