@@ -83,6 +83,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import torch
 
+    from srvol.checkpoint import read_config
+
     torch.set_num_threads(2)
     rows = []
     for name in args.runs.split(","):
@@ -90,8 +92,6 @@ def main(argv=None) -> int:
         if not (run / "model.pt").is_file():
             print(f"{run}: no finished run (python -m bench.bench_train makes it)", file=sys.stderr)
             return 2
-        from srvol.checkpoint import read_config
-
         sr = read_config(run)["train"]["sr"]
         samplers = [None] + (["antithetic", "lattice"] if sr == "gaussian" else ["mc"])
         base = None

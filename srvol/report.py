@@ -11,7 +11,6 @@ import html
 import json
 from pathlib import Path
 
-from srvol.errors import SrvolError
 from srvol.images import atomic_write_text
 
 BENCH_RESULTS = Path(__file__).resolve().parent.parent / "bench" / "results"
@@ -34,36 +33,19 @@ def _md_table(path: Path) -> str:
     return f"<pre>{html.escape(path.read_text())}</pre>"
 
 
-def _psf_rays_words(t: dict) -> str:
-    """A run's PSF rays in words, from its saved config (srvol.train.describe_psf_rays has the
-    exact counts; it is not imported here to keep this command free of torch)."""
-    gaussian = t["sr"] == "gaussian"
-
-    def words(sampler: str | None) -> str:
-        if gaussian and sampler == "lattice":
-            return "shared ray lattices over 4x4 LR pixels"
-        return f"{t['psf_samples']} rays per LR pixel" + (" (rotated antithetic groups)"
-                                                          if gaussian and sampler == "antithetic" else "")
-
-    text = words(t.get("psf_sampler"))
-    second = t.get("stage2_psf_sampler") or t.get("psf_sampler")
-    if gaussian and second != t.get("psf_sampler") and t.get("stage2_fraction", 0) > 0:
-        text += f"; stage 2: {words(second)}"
-    return text
-
-
 def build_report(run: Path, extra_dirs: list[Path], commands: list[str]) -> str:
-    if not (run / "config.json").is_file():
-        raise SrvolError(f"{run}: not a training run (no config.json)")
+    from srvol.checkpoint import read_config
+    from srvol.train import TrainConfig, describe_psf_rays
+
+    cfg = read_config(run)  # one clear line for a missing, malformed or foreign config.json
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>srvol report</title>",
              "<style>body{font-family:sans-serif;margin:2em;background:#fafafa;color:#222}"
              "table{border-collapse:collapse}td{border:1px solid #ccc;padding:2px 8px}"
              "pre{background:#eee;padding:8px;overflow-x:auto}h2{margin-top:1.5em}</style></head><body>",
              f"<h1>srvol report: {html.escape(run.name)}</h1>"]
-    cfg = json.loads((run / "config.json").read_text())
     parts.append("<h2>Training</h2>")
     t = cfg["train"]
-    rays = _psf_rays_words(t)
+    rays = describe_psf_rays(TrainConfig.from_json(t), cfg["scene"]["psf_sigma_lr_px"])
     parts.append(f"<p>preset <b>{html.escape(t['preset'])}</b>, PSF model "
                  f"<b>{html.escape(t['sr'])}</b>, {html.escape(rays)}.</p>")
     reasons = cfg["train"].get("reasons") or []

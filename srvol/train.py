@@ -219,7 +219,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    for v in scene.train_views()))
     # Rays per step bounded so that one step stays ~0.1-0.2 s on 2 cores.
     batch_in = int(max(64, min(512, 512 // ns)))
-    batch_stage2 = int(max(64, 700 // ns))
+    batch_stage2 = int(max(64, TrainConfig.batch_stage2 // ns))  # the paper's 700 rays per step
     reasons.append(f"{n_in} in-mask training pixels; {batch_in} per step x {ns} rays "
                    f"(stage 2: {batch_stage2 * ns} rays per step)")
     reasons.append(f"time budget {time_budget:.0f} s for both stages")

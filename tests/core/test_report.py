@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 from srvol.errors import SrvolError
 from srvol.images import read_png, write_png
 from srvol.report import build_report
+from srvol.train import fast_config
 
 CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)
 
@@ -20,8 +22,9 @@ def _fake_run(root: Path) -> Path:
     """A run folder as training and eval leave it (config, summary, metrics, an eval sheet)."""
     run = root / "run"
     run.mkdir()
-    (run / "config.json").write_text(json.dumps({"version": 1, "train": {
-        "preset": "auto", "sr": "gaussian", "psf_samples": 4, "reasons": ["HR pixel footprint 0.0051"]}}))
+    train = replace(fast_config("gaussian"), reasons=("HR pixel footprint 0.0051",))
+    (run / "config.json").write_text(json.dumps({"version": 1, "train": train.to_json(),
+                                                 "scene": {"psf_sigma_lr_px": 0.375}}))
     (run / "train_summary.json").write_text(json.dumps({"iterations": 4732, "train_seconds": 597.0}))
     (run / "metrics.json").write_text(json.dumps({"psnr_hr": 38.39, "normal_mae_deg": 3.10}))
     yy, xx = np.mgrid[0:120, 0:160] / 120.0
@@ -37,11 +40,15 @@ def test_report_inlines_images_metrics_and_commands(tmp_path):
     assert "data:image/png;base64," in page  # self-contained: no file references
     assert "src=\"/" not in page and "src='/" not in page
     assert "38.3900" in page and "HR pixel footprint 0.0051" in page
+    assert "4 rays per LR pixel" in page  # the PSF rays in the words `srvol train` prints
     assert "srvol train scene --out run" in page
 
 
 def test_report_of_a_folder_that_is_not_a_run_is_one_error(tmp_path):
     with pytest.raises(SrvolError, match="not a training run"):
+        build_report(tmp_path, [], [])
+    (tmp_path / "config.json").write_text("{broken")
+    with pytest.raises(SrvolError, match="malformed JSON"):
         build_report(tmp_path, [], [])
 
 
