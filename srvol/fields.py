@@ -8,7 +8,9 @@ Two families with one interface (:class:`SceneFields`):
 * ``grid`` -- CPU-first: the SDF is a sphere plus a small MLP on multi-resolution
   dense feature grids (smoothstep interpolation, so normals are continuous and
   double backward works); the material is a small MLP on a multi-resolution
-  hash grid, the specular head reading only the coarse levels.
+  hash grid, the specular head reading only the coarse levels. Their heads use
+  GELU(100 x) / 100 (:class:`SharpGELU`), the shape of the paper's Softplus(100)
+  at a quarter of the cost on a CPU.
 
 Output decoding (sigmoid ranges, the alpha floor) lives here and only here:
 :meth:`SceneFields.material` returns a :class:`~srvol.types.SurfaceMaterial`.
@@ -39,6 +41,8 @@ class FieldConfig:
     spec_levels: how many coarse material levels the specular head reads.
     mat_hidden: hidden width of the material heads.
     init_radius: radius of the initial sphere.
+    activation: of the grid heads, "gelu" (:class:`SharpGELU`) or "softplus" (the paper's
+        Softplus(beta=100); runs saved before the choice existed read as "softplus").
     paper_*: the paper's MLP sizes.
     """
 
@@ -54,6 +58,7 @@ class FieldConfig:
     spec_levels: int = 4
     mat_hidden: int = 64
     init_radius: float = 0.5
+    activation: str = "gelu"
     paper_sdf_layers: int = 5
     paper_sdf_width: int = 512
     paper_sdf_skip: int = 4
@@ -74,6 +79,7 @@ class FieldConfig:
     def from_json(d: dict) -> "FieldConfig":
         d = dict(d)
         d["sdf_levels"] = tuple(d.get("sdf_levels", FieldConfig.sdf_levels))
+        d.setdefault("activation", "softplus")  # saved before the choice existed
         known = FieldConfig.__dataclass_fields__
         return FieldConfig(**{k: v for k, v in d.items() if k in known})
 
@@ -84,7 +90,7 @@ class FieldConfig:
                     f"specular {self.paper_spec_layers}x{self.paper_spec_width} (PE {self.paper_spec_freqs})")
         return (f"SDF grids {'/'.join(map(str, self.sdf_levels))}^3 x{self.sdf_channels} + {self.sdf_hidden}-wide head; "
                 f"material hash grid {self.mat_levels} levels {self.mat_min_res}..{self.mat_max_res} "
-                f"(2^{self.mat_table_log2} x{self.mat_channels})")
+                f"(2^{self.mat_table_log2} x{self.mat_channels}); heads {self.activation}")
 
 
 # ----------------------------------------------------------------------------- encodings
@@ -223,9 +229,9 @@ class SceneFields(nn.Module):
             self.sdf_net = GridSDF(cfg)
             self.mat_grid = HashGrids(cfg.mat_levels, cfg.mat_min_res, cfg.mat_max_res, cfg.mat_table_log2,
                                       cfg.mat_channels)
-            self.albedo_net = _mlp(self.mat_grid.out_dim, cfg.mat_hidden, 3, 2)
+            self.albedo_net = _mlp(self.mat_grid.out_dim, cfg.mat_hidden, 3, 2, cfg.activation)
             self.spec_dim = min(cfg.spec_levels, cfg.mat_levels) * cfg.mat_channels
-            self.spec_net = _mlp(self.spec_dim, cfg.mat_hidden // 2, 2, 2)
+            self.spec_net = _mlp(self.spec_dim, cfg.mat_hidden // 2, 2, 2, cfg.activation)
         else:
             raise ValueError(f"unknown field kind {cfg.kind!r}")
         # Start grey (albedo ~0.5), F0 ~0.04, alpha ~0.25.
@@ -283,12 +289,34 @@ class SceneFields(nn.Module):
         return list(self.albedo_net.parameters()), list(self.spec_net.parameters()), tables
 
 
-def _mlp(d_in: int, width: int, d_out: int, layers: int) -> nn.Sequential:
-    """``layers`` linear layers (layers - 1 hidden), Softplus(beta=100) between them."""
+class SharpGELU(nn.Module):
+    """GELU(100 x) / 100: a ReLU rounded over ~0.01, like Softplus(beta=100), and as smooth
+    (C-infinity: continuous normals, and the eikonal term's double backward exists).
+
+    Measured on 2 CPU cores: 0.3 ms for GELU vs 1.1 ms for Softplus on 1.4 M activations;
+    Softplus was 22% of a stage-1 and 36% of a stage-2 step of auto on the default scene, and
+    with this activation a 600 s auto run takes 29% more steps (6286 vs 4871 with --sr
+    gaussian, 5485 vs 4384 with none) at the same HR PSNR (39.45 vs 39.40, 38.96 vs 38.93 dB).
+    """
+
+    def forward(self, x: Tensor) -> Tensor:
+        return torch.nn.functional.gelu(x * 100.0) * 0.01
+
+
+def _activation(name: str) -> nn.Module:
+    if name == "gelu":
+        return SharpGELU()
+    if name == "softplus":
+        return nn.Softplus(beta=100)
+    raise ValueError(f"unknown activation {name!r} (gelu or softplus)")
+
+
+def _mlp(d_in: int, width: int, d_out: int, layers: int, activation: str = "softplus") -> nn.Sequential:
+    """``layers`` linear layers (layers - 1 hidden), ``activation`` between them."""
     mods: list[nn.Module] = []
     d = d_in
     for _ in range(layers - 1):
-        mods += [nn.Linear(d, width), nn.Softplus(beta=100)]
+        mods += [nn.Linear(d, width), _activation(activation)]
         d = width
     mods.append(nn.Linear(d, d_out))
     return nn.Sequential(*mods)
@@ -301,7 +329,7 @@ class GridSDF(nn.Module):
         super().__init__()
         self.r0 = cfg.init_radius
         self.grids = DenseGrids(cfg.sdf_levels, cfg.sdf_channels)
-        self.head = _mlp(self.grids.out_dim + 3, cfg.sdf_hidden, 1, 3)
+        self.head = _mlp(self.grids.out_dim + 3, cfg.sdf_hidden, 1, 3, cfg.activation)
         with torch.no_grad():
             self.head[-1].weight.mul_(0.01)
             self.head[-1].bias.zero_()
