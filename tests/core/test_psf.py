@@ -131,6 +131,8 @@ def test_antithetic_offsets_are_gaussian_draws_in_rotated_groups_of_four():
     assert (off.reshape(-1, 2).std(0) - sigma).abs().max().item() < 5 * sigma / math.sqrt(2 * n)
     odd = pixel_offsets(SRMode.GAUSSIAN, n_pixels=3, n_samples=6, sigma_lr_px=sigma, sr=4, antithetic=True)
     assert odd.shape == (3, 6, 2)  # counts that are not a multiple of 4 keep the leading members
+    pair = pixel_offsets(SRMode.GAUSSIAN, n_pixels=5, n_samples=2, sigma_lr_px=sigma, sr=4, antithetic=True)
+    torch.testing.assert_close(pair[:, 1], -pair[:, 0])  # auto's default scene: the pair {g, -g}
 
 
 @pytest.mark.parametrize("period, max_ratio", [(4.0, 0.7), (1.5, 1.05)])

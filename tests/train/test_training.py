@@ -185,10 +185,11 @@ def test_auto_capacity_scales_the_scene_derived_model(default_scene):
 
 
 def test_psf_warmup_trades_rays_per_pixel_for_pixels_at_equal_rays(default_scene):
-    """--psf-warmup 0.5: for the first half, 1 Gaussian-offset ray per pixel and 4x the pixels; then
-    4 rays per pixel. Stage 2 and the other SR modes never warm up; the rays per step stay the same."""
+    """--psf-warmup 0.5 with 4 rays per pixel: for the first half, 1 Gaussian-offset ray per pixel and
+    4x the pixels; then 4 rays per pixel. Stage 2 and the other SR modes never warm up; the rays per
+    step stay the same."""
     scene = load_scene(default_scene)
-    cfg = replace(auto_config(scene, "gaussian", 60.0), psf_warmup=0.5)
+    cfg = replace(auto_config(scene, "gaussian", 60.0), psf_warmup=0.5, psf_samples=4, batch_in=128)
     assert cfg.psf_samples == 4
     assert [psf_rays_per_pixel(cfg, 1, p) for p in (0.0, 0.49, 0.5, 0.9)] == [1, 1, 4, 4]
     assert psf_rays_per_pixel(cfg, 2, 0.1) == 4
@@ -222,7 +223,7 @@ def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
 
 
 def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
-    """auto derives N_s = 4 for the default scene; --psf-samples 2 keeps auto's sampler and pixels
+    """auto derives N_s = 2 for the default scene; --psf-samples 4 keeps auto's sampler and pixels
     per step, and the printed reasons say what was asked instead of the derived count."""
     import argparse
 
@@ -230,14 +231,16 @@ def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
 
     ap = argparse.ArgumentParser()
     add_parser(ap.add_subparsers())
-    args = ap.parse_args(["train", str(default_scene), "--out", "unused", "--psf-samples", "2"])
-    cfg = build_config(load_scene(default_scene), args)
-    assert (cfg.psf_samples, cfg.psf_sampler) == (2, "antithetic")
-    assert cfg.reasons[-1] == f"--psf-samples 2 (asked): {cfg.batch_in} in-mask pixels per step x 2 rays"
+    scene = load_scene(default_scene)
+    assert auto_config(scene, "gaussian", 60.0).psf_samples == 2
+    args = ap.parse_args(["train", str(default_scene), "--out", "unused", "--psf-samples", "4"])
+    cfg = build_config(scene, args)
+    assert (cfg.psf_samples, cfg.psf_sampler) == (4, "antithetic")
+    assert cfg.reasons[-1] == f"--psf-samples 4 (asked): {cfg.batch_in} in-mask pixels per step x 4 rays"
 
 
 def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_scene):
-    """auto --sr gaussian: stage 1 estimates each pixel from its own 4 antithetic rays (varied pixels
+    """auto --sr gaussian: stage 1 estimates each pixel from its own antithetic pair of rays (varied pixels
     for the geometry); stage 2 (geometry frozen) from shared lattices with Gaussian weights, at the
     same rays per step as noSR's stage 2. --psf-sampler alone sets both stages; --stage2-psf-sampler
     sets stage 2."""
@@ -252,7 +255,7 @@ def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_sc
     sig, sr = scene.info.psf_sigma_lr_px, scene.info.sr_factor
     one = sample_pixels(bank, cfg, sig, sr, 1, torch.Generator().manual_seed(0))
     two = sample_pixels(bank, cfg, sig, sr, 2, torch.Generator().manual_seed(0))
-    assert one.n_rays == 4 * len(one.target)  # 4 rays of its own per pixel
+    assert one.n_rays == 2 * len(one.target) == 2 * 256  # an antithetic pair of its own per pixel
     k = lattice_size(cfg.patch, cfg.lattice_cell, sig)  # one k x k lattice serves 4x4 neighbouring pixels
     assert two.n_rays == len(two.target) // cfg.patch ** 2 * k * k
     none = auto_config(scene, "none", 60.0)
