@@ -211,7 +211,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                        "still drawn from the Gaussian, the group's error is zero where the image varies linearly")
         reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
                        "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run: +0.53 dB HR "
-                       "PSNR, vs +0.15 dB with antithetic rays and +0.0 dB for noSR)")
+                       "PSNR vs +0.15 dB with antithetic rays and +0.0 dB for noSR; stage2_table.md)")
     elif mode == SRMode.BOX:
         ns = scene.info.sr_factor ** 2
         reasons.append(f"box PSF: {ns} rays per LR pixel (sr {scene.info.sr_factor})")
