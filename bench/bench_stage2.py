@@ -35,7 +35,7 @@ def continue_stage2(run: Path, sampler: str | None, seconds: float, views: int, 
     from srvol.data import load_scene
     from srvol.evaluate import render_view
     from srvol.pixels import PixelBank
-    from srvol.train import TrainConfig, compute_loss, make_optimizers, set_learning_rate
+    from srvol.train import TrainConfig, compute_loss, make_optimizers, set_learning_rate, take_step
     from srvol.types import PointLight
 
     config = read_config(run)
@@ -57,12 +57,7 @@ def continue_stage2(run: Path, sampler: str | None, seconds: float, views: int, 
         t0 = time.time()
         while time.time() - t0 < seconds:
             set_learning_rate(opts, 0.85 + 0.15 * (time.time() - t0) / seconds, cfg, 1.0)
-            terms = compute_loss(fields, bank, cfg, sigma, sr, 2, gen, intensity)
-            for o in opts:
-                o.zero_grad(set_to_none=True)
-            terms.total.backward()
-            for o in opts:
-                o.step()
+            take_step(opts, compute_loss(fields, bank, cfg, sigma, sr, 2, gen, intensity).total)
             steps += 1
     psnr = []
     with torch.no_grad():

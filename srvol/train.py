@@ -304,6 +304,20 @@ def psf_rays_per_pixel(cfg: TrainConfig, stage: int, progress: float) -> int:
     return cfg.psf_samples
 
 
+def rays_per_step(cfg: TrainConfig, stage: int) -> int:
+    """In-mask rays a step of ``stage`` traces (the lattice samplers round it to whole patches)."""
+    return (cfg.batch_in if stage == 1 else cfg.batch_stage2) * cfg.psf_samples
+
+
+def take_step(opts: list[torch.optim.Optimizer], loss: torch.Tensor) -> None:
+    """One optimiser step on ``loss``."""
+    for o in opts:
+        o.zero_grad(set_to_none=True)
+    loss.backward()
+    for o in opts:
+        o.step()
+
+
 def sample_pixels(bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stage: int,
                   gen: torch.Generator, progress: float = 1.0) -> PixelBatch:
     """The in-mask pixels of one step and their rays: per-pixel rays or shared lattice patches."""
@@ -311,8 +325,7 @@ def sample_pixels(bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stag
     sampler = psf_sampler_of_stage(cfg, stage)
     if mode == SRMode.GAUSSIAN and sampler == "lattice":
         rays_per_patch = lattice_size(cfg.patch, cfg.lattice_cell, sigma) ** 2
-        n_rays = cfg.batch_in * cfg.psf_samples if stage == 1 else cfg.batch_stage2 * cfg.psf_samples
-        n = max(1, round(n_rays / rays_per_patch))
+        n = max(1, round(rays_per_step(cfg, stage) / rays_per_patch))
         return bank.sample_patches(n, cfg.patch, cfg.lattice_cell, sigma, gen)
     n_in = cfg.batch_in if stage == 1 else cfg.batch_stage2
     ns = psf_rays_per_pixel(cfg, stage, progress)
@@ -441,7 +454,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                 p.requires_grad_(False)
             opts = make_optimizers(fields, cfg, 2)
             say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "
-                f"({cfg.batch_stage2 * cfg.psf_samples} rays per step)")
+                f"({rays_per_step(cfg, 2)} rays per step)")
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         intensity = fixed_I if fixed_I is not None else fields.intensity
         terms = compute_loss(fields, bank, cfg, sigma, sr, state.stage, gen, intensity, progress_frac)
@@ -460,11 +473,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             say(f"non-finite loss at step {state.step}: rolled back to step {last_good_step} "
                 f"with learning rate x{state.lr_scale:g}")
             continue
-        for o in opts:
-            o.zero_grad(set_to_none=True)
-        terms.total.backward()
-        for o in opts:
-            o.step()
+        take_step(opts, terms.total)
         state.step += 1
         last = terms
         state.elapsed = time.time() - t_start
