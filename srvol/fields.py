@@ -296,7 +296,8 @@ class SharpGELU(nn.Module):
     Measured on 2 CPU cores: 0.3 ms for GELU vs 1.1 ms for Softplus on 1.4 M activations;
     Softplus was 22% of a stage-1 and 36% of a stage-2 step of auto on the default scene, and
     with this activation a 600 s auto run takes 29% more steps (6286 vs 4871 with --sr
-    gaussian, 5485 vs 4384 with none) at the same HR PSNR (39.45 vs 39.40, 38.96 vs 38.93 dB).
+    gaussian, 5485 vs 4384 with none) at the same HR PSNR (39.45 vs 39.40, 38.96 vs 38.93 dB on test
+    views 040-042).
     """
 
     def forward(self, x: Tensor) -> Tensor:

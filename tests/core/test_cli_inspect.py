@@ -63,6 +63,7 @@ class Runs:
     synth_list: Launched
     synth_no_out: Launched
     synth_existing: Launched
+    synth_bad_size: Launched
     existing_dir: Path
 
 
@@ -87,6 +88,7 @@ def runs(tmp_path_factory) -> Runs:
                 synth_no_out=Launched("synth"),
                 synth_existing=Launched("synth", "--out", str(existing), "--lr", "16x12", "--views", "2",
                                         "--test-views", "1"),
+                synth_bad_size=Launched("synth", "--out", str(base / "never"), "--lr", "wide"),
                 existing_dir=existing)
 
 
@@ -128,3 +130,7 @@ def test_synth_refuses_an_existing_folder_and_leaves_it_untouched(runs):
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
     assert (out / "keep.txt").read_text() == "mine"
     assert sorted(p.name for p in out.parent.iterdir()) == ["taken"]  # no temporary folder left beside it
+
+
+def test_a_malformed_option_is_one_line_not_a_usage_block(runs):
+    assert_one_line_error(runs.synth_bad_size.result(), "synth: argument --lr", "expected WxH", "--help")

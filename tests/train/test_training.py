@@ -149,6 +149,26 @@ def test_non_finite_loss_rolls_back_with_lower_lr(default_scene, tmp_path, monke
     assert any("rolled back to step 4" in s and "x0.5" in s for s in said)
 
 
+def test_a_time_budget_is_not_overrun_by_a_slow_last_step(default_scene, tmp_path, monkeypatch):
+    """Steps of 0.4 s and a 1.0 s budget: two steps (0.8 s), not a third that would end at 1.2 s."""
+    import srvol.train as T
+
+    scene = load_scene(default_scene)
+    cfg = replace(_tiny(fast_config(), 0), iters=0, time_budget=1.0, stage2_fraction=0.0, batch_in=16,
+                  batch_out=16, batch_eikonal=16)
+    real = T.take_step
+
+    def slow(opts, loss):
+        t0 = time.time()
+        real(opts, loss)
+        time.sleep(max(0.0, 0.4 - (time.time() - t0)))
+
+    monkeypatch.setattr(T, "take_step", slow)
+    summary = T.train(scene, cfg, tmp_path / "run", progress=False, say=lambda s: None)
+    assert summary.train_seconds <= 1.0, summary
+    assert 1 <= summary.iterations <= 2
+
+
 def test_collapsed_sdf_is_reported():
     f = SceneFields(fast_config().fields, learn_intensity=False)
     assert check_not_collapsed(f, "cpu") is None
