@@ -437,6 +437,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     last_good_step = state.step
     snaps_done = len(list((run_dir / "snapshots").glob("*.pt"))) if cfg.snapshots else 0
     step_seconds = 0.0  # the last step's duration: the estimate of the next one's
+    stage2_skipped = False
     while True:
         elapsed = time.time() - t_start
         if cfg.iters:
@@ -445,11 +446,20 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             progress_frac = state.step / cfg.iters
             want_stage = 2 if state.step >= stage2_at and cfg.stage2_fraction > 0 else 1
         else:
-            # stop when the next step would end past the budget (a paper-preset step on a CPU is ~25 s)
-            if elapsed + step_seconds >= budget:
-                break
             progress_frac = elapsed / budget
             want_stage = 2 if progress_frac >= 1 - cfg.stage2_fraction and cfg.stage2_fraction > 0 else 1
+            # Stop when the next step would end past the budget (a paper-preset step on a CPU takes
+            # ~25 s). The first step of stage 2 is estimated from stage 1's by their rays per step;
+            # when it would not fit, stage 1 goes on instead.
+            if want_stage != state.stage:
+                first = step_seconds * rays_per_step(cfg, want_stage) / rays_per_step(cfg, state.stage)
+                if elapsed + first >= budget:
+                    if not stage2_skipped:
+                        say(f"stage 2 skipped: its first step (~{first:.0f} s) would end past the budget")
+                        stage2_skipped = True
+                    want_stage = state.stage
+            if elapsed + step_seconds >= budget:
+                break
         if want_stage != state.stage:
             state.stage = want_stage
             for p in fields.geometry_parameters():

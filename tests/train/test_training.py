@@ -150,12 +150,14 @@ def test_non_finite_loss_rolls_back_with_lower_lr(default_scene, tmp_path, monke
 
 
 def test_a_time_budget_is_not_overrun_by_a_slow_last_step(default_scene, tmp_path, monkeypatch):
-    """Steps of 0.4 s and a 1.0 s budget: two steps (0.8 s), not a third that would end at 1.2 s."""
+    """Steps of 0.4 s and a 1.0 s budget: two steps (0.8 s), not a third that would end at 1.2 s.
+    Stage 2 (from 0.5 s on) traces 8x the rays of stage 1, so its first step is estimated at ~3 s:
+    it is skipped, said so, and stage 1 goes on."""
     import srvol.train as T
 
     scene = load_scene(default_scene)
-    cfg = replace(_tiny(fast_config(), 0), iters=0, time_budget=1.0, stage2_fraction=0.0, batch_in=16,
-                  batch_out=16, batch_eikonal=16)
+    cfg = replace(_tiny(fast_config(), 0), iters=0, time_budget=1.0, stage2_fraction=0.5, batch_in=16,
+                  batch_out=16, batch_eikonal=16, batch_stage2=128)
     real = T.take_step
 
     def slow(opts, loss):
@@ -164,9 +166,11 @@ def test_a_time_budget_is_not_overrun_by_a_slow_last_step(default_scene, tmp_pat
         time.sleep(max(0.0, 0.4 - (time.time() - t0)))
 
     monkeypatch.setattr(T, "take_step", slow)
-    summary = T.train(scene, cfg, tmp_path / "run", progress=False, say=lambda s: None)
+    said = []
+    summary = T.train(scene, cfg, tmp_path / "run", progress=False, say=said.append)
     assert summary.train_seconds <= 1.0, summary
     assert 1 <= summary.iterations <= 2
+    assert any(s.startswith("stage 2 skipped") for s in said) and not any(s.startswith("stage 2 at") for s in said)
 
 
 def test_collapsed_sdf_is_reported():
