@@ -181,7 +181,9 @@ def train_only_row(run: Path, args, preset: str, sr: str, wall: float, rss: floa
             "peak_rss_gib": round(rss, 2), "curve": [], "command": command, "train_only": True,
             "psf_rays": psf_rays(run),
             "iterations": summary["iterations"], "train_seconds": summary["train_seconds"],
-            "train_psnr_lr_last": float(np.mean([r["psnr"] for r in log[-4:]])) if log else float("nan")}
+            # the last logged steps, or the final step's when the run is shorter than one log interval
+            "train_psnr_lr_last": float(np.mean([r["psnr"] for r in log[-4:]])) if log
+            else summary.get("final_train_psnr", float("nan"))}
 
 
 def train_psnr_at_end(run: Path) -> float:
@@ -211,7 +213,7 @@ def write_results(rows: list[dict], args) -> None:
             continue
         if r.get("train_only"):
             lines.append(f"| {r['preset']} | {r['sr']} | {r.get('psf_rays', '')} | not rendered (train PSNR on training pixels at the "
-                         f"budget: {r['train_psnr_lr_last']:.2f} dB; nan = fewer steps than one log interval) | | | | | | | | {r['iterations']} | "
+                         f"budget: {r['train_psnr_lr_last']:.2f} dB) | | | | | | | | {r['iterations']} | "
                          f"{r['train_seconds']:.0f} | {r['peak_rss_gib']:.2f} | |")
             continue
         d = f"{r['psnr_hr'] - ref['psnr_hr']:+.2f} dB" if ref else ""
