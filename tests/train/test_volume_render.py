@@ -70,7 +70,7 @@ def test_render_of_initial_sphere_is_opaque_inside_and_empty_outside():
     # expected depth of the central ray: the sphere at t = 2.5 (within a few beta)
     assert abs(float((vr.result.depth[0] / op[0]).detach()) - 2.5) < 0.02
     # expected normal faces the camera
-    n = vr.result.normal[0] / vr.result.normal[0].norm()
+    n = (vr.result.normal[0] / vr.result.normal[0].norm()).detach()
     assert float(n @ torch.tensor([0.0, 0.0, -1.0])) > 0.999
 
 
