@@ -175,21 +175,21 @@ def psf_rays(run: Path) -> str:
 def train_only_row(run: Path, args, preset: str, sr: str, wall: float, rss: float, command: str) -> dict:
     """A run scored by its training log: iterations and train PSNR (on training pixels, LR) at the budget."""
     summary = json.loads((run / "train_summary.json").read_text())
-    log_path = run / "log.jsonl"
-    log = [json.loads(x) for x in log_path.read_text().splitlines()] if log_path.is_file() else []
     return {"scene": args.scene, "preset": preset, "sr": sr, "command_seconds": round(wall, 1),
             "peak_rss_gib": round(rss, 2), "curve": [], "command": command, "train_only": True,
             "psf_rays": psf_rays(run),
             "iterations": summary["iterations"], "train_seconds": summary["train_seconds"],
-            # the last logged steps, or the final step's when the run is shorter than one log interval
-            "train_psnr_lr_last": float(np.mean([r["psnr"] for r in log[-4:]])) if log
-            else summary.get("final_train_psnr", float("nan"))}
+            "train_psnr_lr_last": train_psnr_at_end(run)}
 
 
 def train_psnr_at_end(run: Path) -> float:
+    """Train PSNR (training pixels, LR) over the last logged steps, or the final step's when the run
+    is shorter than one log interval."""
     log_path = run / "log.jsonl"
     log = [json.loads(x) for x in log_path.read_text().splitlines()] if log_path.is_file() else []
-    return float(np.mean([r["psnr"] for r in log[-4:]])) if log else float("nan")
+    if log:
+        return float(np.mean([r["psnr"] for r in log[-4:]]))
+    return json.loads((run / "train_summary.json").read_text()).get("final_train_psnr", float("nan"))
 
 
 def write_results(rows: list[dict], args) -> None:

@@ -327,9 +327,8 @@ def sample_pixels(bank: PixelBank, cfg: TrainConfig, sigma: float, sr: int, stag
         rays_per_patch = lattice_size(cfg.patch, cfg.lattice_cell, sigma) ** 2
         n = max(1, round(rays_per_step(cfg, stage) / rays_per_patch))
         return bank.sample_patches(n, cfg.patch, cfg.lattice_cell, sigma, gen)
-    n_in = cfg.batch_in if stage == 1 else cfg.batch_stage2
     ns = psf_rays_per_pixel(cfg, stage, progress)
-    return bank.sample(n_in * cfg.psf_samples // ns, True, mode, ns, sigma, sr, gen,
+    return bank.sample(rays_per_step(cfg, stage) // ns, True, mode, ns, sigma, sr, gen,
                        antithetic=sampler == "antithetic")
 
 
@@ -488,8 +487,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         take_step(opts, terms.total)
         state.step += 1
         last = terms
-        step_seconds = time.time() - t_start - elapsed
         state.elapsed = time.time() - t_start
+        step_seconds = state.elapsed - elapsed
         if state.step % cfg.log_every == 0:
             rec = {"step": state.step, "stage": state.stage, "seconds": round(state.elapsed, 2),
                    "loss": round(float(terms.total.detach()), 6), "l1": round(terms.photometric, 6),
