@@ -204,6 +204,15 @@ def test_missing_mask_when_masks_exist(tiny_scene):
     expect_scene_error(tiny_scene, "001.png", "missing mask")
 
 
+def test_a_camera_name_with_a_newline_stays_a_one_line_error(tiny_scene):
+    """A name read from cameras.json is written with Python escapes (found by the property test below)."""
+    path = tiny_scene / "cameras.json"
+    cams = json.loads(path.read_text())
+    cams["bad\nname"] = None
+    path.write_text(json.dumps(cams))
+    expect_scene_error(tiny_scene, "cameras.json", "bad\\nname")
+
+
 def test_image_of_random_bytes(tiny_scene):
     (tiny_scene / "image" / "000.exr").write_bytes(b"not an exr at all")
     expect_scene_error(tiny_scene, "000.exr")
