@@ -88,7 +88,7 @@ def main(argv=None) -> int:
             print(f"{run}: no finished run (python -m bench.bench_train makes it)", file=sys.stderr)
             return 2
         sr = read_config(run)["train"]["sr"]
-        samplers = [None] + (["antithetic", "lattice"] if sr == "gaussian" else ["mc"])
+        samplers = [None] + (["mc", "antithetic", "lattice"] if sr == "gaussian" else ["mc"])
         base = None
         for s in samplers:
             row = continue_stage2(run, s, args.seconds, args.views)
@@ -104,6 +104,10 @@ def main(argv=None) -> int:
               f"{r['gain_db']:+.2f} |" for r in rows]
     lines += ["", f"HR PSNR over held-out views {', '.join(rows[0]['views'])}; 700 rays per step in every row "
               "(auto's stage-2 batch); the learning rate replays the last 15% of the schedule, Adam starts afresh.",
+              "", "gaussian samplers: `mc` 2 i.i.d. rays per LR pixel, `antithetic` the pair {g, -g}, `lattice` "
+              "shared lattices with Gaussian weights (auto's stage 2). The L1 of a noisy PSF estimate is at "
+              "least the noise's mean magnitude, and the noise is the image's variation within the pixel: "
+              "the noisier the estimate, the stronger the loss's pull towards an image flat within each pixel.",
               "", f"Command: `python -m bench.bench_stage2 --runs {args.runs} --seconds {args.seconds:g} "
               f"--views {args.views}`"]
     (RESULTS / "stage2_table.md").write_text("\n".join(lines) + "\n")

@@ -210,8 +210,10 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         reasons.append("PSF rays in antithetic pairs {g, -g} (rotated groups {g, -g, Jg, -Jg} from 4 rays): each "
                        "still drawn from the Gaussian, the group's error is zero where the image varies linearly")
         reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
-                       "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run: +0.32 dB HR "
-                       "PSNR vs -0.67 dB with antithetic pairs and +0.01 dB for noSR; stage2_table.md)")
+                       "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run: +0.41 dB HR "
+                       "PSNR vs -0.64 dB with antithetic pairs, -1.10 dB with 2 i.i.d. rays -- the L1 of a noisy "
+                       "estimate pulls towards images flat within each pixel -- and -0.03 dB for noSR; "
+                       "stage2_table.md)")
     elif mode == SRMode.BOX:
         ns = scene.info.sr_factor ** 2
         reasons.append(f"box PSF: {ns} rays per LR pixel (sr {scene.info.sr_factor})")
