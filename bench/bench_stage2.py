@@ -1,7 +1,7 @@
 """Stage-2 sampler study: continue a finished run's stage 2 (geometry frozen, BRDF refined) for a
-few more seconds with each PSF sampler, and score HR PSNR on held-out views. It isolates what the
-sampler does for the BRDF from what it does for the geometry (stage 1), and shows how much noSR
-gains from the same extra time.
+few more seconds with each PSF sampler and each count of samples per ray, and score HR PSNR on
+held-out views. It isolates what the samplers do for the BRDF from what they do for the geometry
+(stage 1), and shows how much noSR gains from the same extra time.
 
     python -m bench.bench_stage2 [--seconds 90] [--runs bumpy_auto_gaussian_600s,bumpy_auto_none_600s]
 
@@ -25,9 +25,15 @@ RESULTS = ROOT / "results"
 WORK = ROOT / "work"
 
 
-def continue_stage2(run: Path, sampler: str | None, seconds: float, views: int, seed: int = 1) -> dict:
-    """HR PSNR on the first ``views`` test views after ``seconds`` more of stage 2 with ``sampler``
-    (None: score the run as it is)."""
+def ray_samples_label(s) -> str:
+    return f"{s.n_coarse} + {s.gradient_samples}"
+
+
+def continue_stage2(run: Path, sampler: str | None, ray_samples, seconds: float, views: int,
+                    seed: int = 1) -> dict:
+    """HR PSNR on the first ``views`` test views after ``seconds`` more of stage 2 with the PSF
+    ``sampler`` and ``ray_samples`` (a SamplerConfig; None: stage 1's) -- sampler None: score the
+    run as it is."""
     import torch
 
     from srvol import metrics
@@ -35,7 +41,7 @@ def continue_stage2(run: Path, sampler: str | None, seconds: float, views: int, 
     from srvol.data import load_scene
     from srvol.evaluate import render_view
     from srvol.pixels import PixelBank
-    from srvol.train import TrainConfig, compute_loss, make_optimizers, set_learning_rate, take_step
+    from srvol.train import TrainConfig, compute_loss, make_optimizers, rays_per_step, set_learning_rate, take_step
     from srvol.types import PointLight
 
     config = read_config(run)
@@ -44,8 +50,9 @@ def continue_stage2(run: Path, sampler: str | None, seconds: float, views: int, 
     fields, info = load_model(run)
     intensity = torch.tensor(info.light_intensity, dtype=torch.float32)
     steps = 0
+    eval_sampler = cfg.sampler
     if sampler is not None:
-        cfg = replace(cfg, stage2_psf_sampler=sampler)
+        cfg = replace(cfg, stage2_psf_sampler=sampler, stage2_sampler=ray_samples or cfg.sampler)
         for p in fields.parameters():
             p.requires_grad_(True)
         for p in fields.geometry_parameters():
@@ -63,10 +70,12 @@ def continue_stage2(run: Path, sampler: str | None, seconds: float, views: int, 
     with torch.no_grad():
         for stem in scene.test[:views]:
             cam = scene.hr_camera(stem)
-            vr = render_view(fields, cam, PointLight.at_camera(cam, intensity), cfg.sampler)
+            vr = render_view(fields, cam, PointLight.at_camera(cam, intensity), eval_sampler)
             psnr.append(metrics.psnr(vr.rgb, scene.gt.image("hr", stem)))
-    return {"run": run.name, "sr": cfg.sr, "sampler": sampler or "(as trained)", "seconds": seconds if sampler else 0.0,
-            "steps": steps, "psnr_hr": float(np.mean(psnr)), "views": scene.test[:views]}
+    return {"run": run.name, "sr": cfg.sr, "sampler": sampler or "(as trained)",
+            "ray_samples": ray_samples_label(cfg.stage2_sampler or cfg.sampler) if sampler else "",
+            "seconds": seconds if sampler else 0.0, "steps": steps, "psnr_hr": float(np.mean(psnr)),
+            "views": scene.test[:views], "rays_per_step": rays_per_step(cfg, 2), "psf_samples": cfg.psf_samples}
 
 
 def main(argv=None) -> int:
@@ -79,8 +88,11 @@ def main(argv=None) -> int:
     import torch
 
     from srvol.checkpoint import read_config
+    from srvol.render import SamplerConfig
+    from srvol.train import STAGE2_SAMPLER
 
     torch.set_num_threads(2)
+    stage1 = SamplerConfig()
     rows = []
     for name in args.runs.split(","):
         run = WORK / "runs" / name
@@ -88,10 +100,16 @@ def main(argv=None) -> int:
             print(f"{run}: no finished run (python -m bench.bench_train makes it)", file=sys.stderr)
             return 2
         sr = read_config(run)["train"]["sr"]
-        samplers = [None] + (["mc", "antithetic", "lattice"] if sr == "gaussian" else ["mc"])
+        # (PSF sampler, samples per ray): the PSF samplers at stage 1's samples, then the counts of samples
+        samplers = [(None, None)]
+        if sr == "gaussian":
+            samplers += [("mc", stage1), ("antithetic", stage1), ("lattice", stage1), ("lattice", STAGE2_SAMPLER),
+                         ("lattice", SamplerConfig(n_coarse=12, n_importance=2, n_uniform=0))]
+        else:
+            samplers += [("mc", stage1), ("mc", STAGE2_SAMPLER)]
         base = None
-        for s in samplers:
-            row = continue_stage2(run, s, args.seconds, args.views)
+        for s, ray_samples in samplers:
+            row = continue_stage2(run, s, ray_samples, args.seconds, args.views)
             base = row["psnr_hr"] if base is None else base
             row["gain_db"] = row["psnr_hr"] - base
             rows.append(row)
@@ -99,15 +117,22 @@ def main(argv=None) -> int:
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "stage2_table.json").write_text(json.dumps(rows, indent=1))
     lines = [f"# Stage 2 (geometry frozen): {args.seconds:.0f} more seconds per sampler", "",
-             "| run | sr | stage-2 sampler | extra s | steps | HR PSNR | gain (dB) |", "|---|---|---|---|---|---|---|"]
-    lines += [f"| {r['run']} | {r['sr']} | {r['sampler']} | {r['seconds']:.0f} | {r['steps']} | {r['psnr_hr']:.2f} | "
-              f"{r['gain_db']:+.2f} |" for r in rows]
-    lines += ["", f"HR PSNR over held-out views {', '.join(rows[0]['views'])}; 700 rays per step in every row "
-              "(auto's stage-2 batch); the learning rate replays the last 15% of the schedule, Adam starts afresh.",
-              "", "gaussian samplers: `mc` 2 i.i.d. rays per LR pixel, `antithetic` the pair {g, -g}, `lattice` "
+             "| run | sr | stage-2 PSF sampler | samples per ray (locating + gradient) | extra s | steps | HR PSNR | "
+             "gain (dB) |", "|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r['run']} | {r['sr']} | {r['sampler']} | {r['ray_samples']} | {r['seconds']:.0f} | {r['steps']} | "
+              f"{r['psnr_hr']:.2f} | {r['gain_db']:+.2f} |" for r in rows]
+    per_step = sorted({r["rays_per_step"] for r in rows})
+    ns = sorted({r["psf_samples"] for r in rows if r["sr"] == "gaussian"})
+    lines += ["", f"HR PSNR over held-out views {', '.join(rows[0]['views'])}; "
+              f"{' / '.join(map(str, per_step))} rays per step (the runs' stage-2 batch); the learning rate "
+              "replays the last 15% of the schedule, Adam starts afresh; scored with stage 1's samples per ray.",
+              "", f"gaussian samplers: `mc` {' / '.join(map(str, ns))} i.i.d. rays per LR pixel, `antithetic` "
+              "the same count in antithetic pairs {g, -g}, `lattice` "
               "shared lattices with Gaussian weights (auto's stage 2). The L1 of a noisy PSF estimate is at "
               "least the noise's mean magnitude, and the noise is the image's variation within the pixel: "
               "the noisier the estimate, the stronger the loss's pull towards an image flat within each pixel.",
+              "", "Samples per ray: with the geometry frozen, fewer samples make a step cheaper (more steps in "
+              "the same seconds); 32 + 12 is stage 1's count, 16 + 4 auto's stage 2.",
               "", f"Command: `python -m bench.bench_stage2 --runs {args.runs} --seconds {args.seconds:g} "
               f"--views {args.views}`"]
     (RESULTS / "stage2_table.md").write_text("\n".join(lines) + "\n")

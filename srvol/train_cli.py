@@ -45,7 +45,7 @@ def add_parser(sub) -> None:
                    help="--sr gaussian: the sampler of stage 2 (geometry frozen, BRDF refined); default: auto "
                         "lattice (low-noise Gaussian weights for the BRDF), otherwise the --psf-sampler of stage 1")
     p.add_argument("--stage2-fraction", type=float,
-                   help="share of the run (time budget or --iters), 0..0.9, spent in stage 2 (default 0.15)")
+                   help="share of the run (time budget or --iters), 0..0.9, spent in stage 2 (default: auto 0.3, fast 0.15, paper 0.1)")
     p.add_argument("--psf-warmup", type=float,
                    help="--sr gaussian (mc, antithetic): share of training, 0..0.85, that uses one PSF ray per LR "
                         "pixel and N_s times as many pixels per step before switching to N_s rays per pixel "
@@ -120,7 +120,7 @@ def build_config(scene, args):
 def run_train(args) -> int:
     from srvol.checkpoint import CONFIG_VERSION, read_config
     from srvol.data import load_scene
-    from srvol.train import TrainConfig, describe_psf_rays, hr_pixel_size, train
+    from srvol.train import TrainConfig, describe_psf_rays, describe_ray_samples, hr_pixel_size, train
 
     t0 = time.time()
     if args.device == "cuda" and not torch.cuda.is_available():
@@ -150,7 +150,7 @@ def run_train(args) -> int:
 
     n_params = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
     print(f"preset {cfg.preset}, sr {cfg.sr}, {describe_psf_rays(cfg, scene.info.psf_sigma_lr_px)}, "
-          f"{cfg.sampler.n_coarse} locating + {cfg.sampler.gradient_samples} gradient samples per ray, "
+          f"{describe_ray_samples(cfg)}, "
           f"{n_params / 1e6:.2f} M parameters")
     print(f"  {cfg.fields.parameter_summary()}")
     for r in cfg.reasons:

@@ -19,9 +19,9 @@ from srvol.fields import SceneFields
 from srvol.pixels import PixelBank
 from srvol.psf import lattice_size
 from srvol.render import SamplerConfig
-from srvol.train import (MTF_FLOOR, TrainConfig, auto_config, check_not_collapsed, compute_loss, describe_psf_rays,
-                         fast_config, paper_config, psf_rays_per_pixel, psf_sampler_of_stage, recoverable_cell_hr_px,
-                         sample_pixels, train)
+from srvol.train import (MTF_FLOOR, STAGE2_SAMPLER, TrainConfig, auto_config, check_not_collapsed, compute_loss,
+                         describe_psf_rays, describe_ray_samples, fast_config, paper_config, psf_rays_per_pixel,
+                         psf_sampler_of_stage, recoverable_cell_hr_px, sample_pixels, sampler_of_stage, train)
 
 
 def _tiny(cfg: TrainConfig, iters: int) -> TrainConfig:
@@ -297,3 +297,18 @@ def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_sc
     assert (psf_sampler_of_stage(c, 1), psf_sampler_of_stage(c, 2), c.stage2_fraction) == ("mc", "antithetic", 0.3)
     with pytest.raises(SrvolError, match="--stage2-fraction"):
         cfg_of("--stage2-fraction", "1.5")
+
+
+def test_stage2_traces_fewer_samples_per_ray_for_every_sr_mode(default_scene):
+    """Stage 2 freezes the surface, so auto (and fast) locate it with fewer samples there; the
+    choice is saved in config.json, and a config written before it existed reads as 'as stage 1'."""
+    scene = load_scene(default_scene)
+    for sr in ("gaussian", "box", "none"):
+        cfg = auto_config(scene, sr, 60.0)
+        assert sampler_of_stage(cfg, 1) == cfg.sampler and sampler_of_stage(cfg, 2) == STAGE2_SAMPLER
+        assert TrainConfig.from_json(cfg.to_json()) == cfg
+    assert "(stage 2: 16 locating + 4 gradient samples per ray)" in describe_ray_samples(cfg)
+    old = cfg.to_json()
+    del old["stage2_sampler"]
+    assert sampler_of_stage(TrainConfig.from_json(old), 2) == cfg.sampler
+    assert paper_config().stage2_sampler is None  # the paper's 98 samples in both stages
