@@ -6,7 +6,7 @@ held-out views. It isolates what the samplers do for the BRDF from what they do 
     python -m bench.bench_stage2 [--seconds 90] [--runs bumpy_auto_gaussian_600s,bumpy_auto_none_600s]
 
 Reads the runs that `bench.bench_train` leaves in bench/work/runs (it does not change them); writes
-bench/results/stage2_table.{md,json}. The learning rate replays the last 15% of the run's schedule;
+bench/results/stage2_table.{md,json}. The learning rate replays the run's stage-2 part of its schedule;
 Adam starts afresh.
 """
 from __future__ import annotations
@@ -63,7 +63,7 @@ def continue_stage2(run: Path, sampler: str | None, ray_samples, seconds: float,
         sigma, sr = scene.info.psf_sigma_lr_px, scene.info.sr_factor
         t0 = time.time()
         while time.time() - t0 < seconds:
-            set_learning_rate(opts, 0.85 + 0.15 * (time.time() - t0) / seconds, cfg, 1.0)
+            set_learning_rate(opts, 1 - cfg.stage2_fraction * (1 - (time.time() - t0) / seconds), cfg, 1.0)
             take_step(opts, compute_loss(fields, bank, cfg, sigma, sr, 2, gen, intensity).total)
             steps += 1
     psnr = []
@@ -125,7 +125,8 @@ def main(argv=None) -> int:
     ns = sorted({r["psf_samples"] for r in rows if r["sr"] == "gaussian"})
     lines += ["", f"HR PSNR over held-out views {', '.join(rows[0]['views'])}; "
               f"{' / '.join(map(str, per_step))} rays per step (the runs' stage-2 batch); the learning rate "
-              "replays the last 15% of the schedule, Adam starts afresh; scored with stage 1's samples per ray.",
+              "replays the stage-2 part of the run's schedule, Adam starts afresh; scored with stage 1's samples "
+              "per ray.",
               "", f"gaussian samplers: `mc` {' / '.join(map(str, ns))} i.i.d. rays per LR pixel, `antithetic` "
               "the same count in antithetic pairs {g, -g}, `lattice` "
               "shared lattices with Gaussian weights (auto's stage 2). The L1 of a noisy PSF estimate is at "

@@ -240,8 +240,8 @@ def write_results(rows: list[dict], args) -> None:
     lines += ["", "`sr` names the training variant (`bench/bench_train.py: SR_VARIANTS`): `gaussian` is the preset's own "
               "PSF sampler (auto: an antithetic pair of rays per LR pixel in stage 1, shared ray lattices with Gaussian "
               "weights in stage 2; paper: 25 i.i.d.), `gaussian-antithetic` antithetic rays in both stages, "
-              "`gaussian-s2-0.15` / `none-s2-0.15` auto with 15% of the budget in stage 2 (auto: 30%), `gaussian-mc` the paper's "
-              "i.i.d. sampler at auto's size, `gaussian-warmup` i.i.d. with `--psf-warmup 0.5`."]
+              "`gaussian-s2-0.15` / `none-s2-0.15` auto with 15% of the budget in stage 2 (auto: 30%), "
+              "`gaussian-mc` the paper's i.i.d. sampler at auto's size, `gaussian-warmup` i.i.d. with `--psf-warmup 0.5`."]
     lines += ["", "Paper (synthetic average after 2-3 days on a GPU): PSNR 32.44 dB, SSIM 0.917, normal MAE 5.28 deg; "
               "Vol-SR 32.20 / 0.912 / 5.31 deg.", "", "Commands:", ""]
     lines += [f"- `{r['command']}`" for r in rows]

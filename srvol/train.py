@@ -137,7 +137,7 @@ def paper_config(sr: str = "gaussian", psf_samples: int = 25, iters: int = 300_0
 STAGE2_SAMPLER = SamplerConfig(n_coarse=16, n_importance=3, n_uniform=1)
 """The fast presets' stage-2 samples per ray: on the default scene's finished 600 s run its colours
 differ from a 128 + 68-sample render by 0.001 on average (the stage-1 sampler's: 0.0002) and a
-stage-2 step takes 2.3x less time (bench/results/stage2_table.md)."""
+stage-2 step takes 2.1x less time (bench/results/stage2_table.md)."""
 
 
 AUTO_STAGE2_FRACTION = 0.3
@@ -226,10 +226,10 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         reasons.append("PSF rays in antithetic pairs {g, -g} (rotated groups {g, -g, Jg, -Jg} from 4 rays): each "
                        "still drawn from the Gaussian, the group's error is zero where the image varies linearly")
         reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
-                       "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run: +0.41 dB HR "
-                       "PSNR vs -0.64 dB with antithetic pairs, -1.10 dB with 2 i.i.d. rays -- the L1 of a noisy "
-                       "estimate pulls towards images flat within each pixel -- and -0.03 dB for noSR; "
-                       "stage2_table.md)")
+                       "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run, 32 + 12 samples "
+                       "per ray: +0.10 dB HR PSNR vs -1.44 dB with antithetic pairs, -1.95 dB with 2 i.i.d. rays -- "
+                       "the L1 of a noisy estimate pulls towards images flat within each pixel -- and -0.05 dB for "
+                       "noSR; stage2_table.md)")
     elif mode == SRMode.BOX:
         ns = scene.info.sr_factor ** 2
         reasons.append(f"box PSF: {ns} rays per LR pixel (sr {scene.info.sr_factor})")
@@ -244,10 +244,11 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                          sdf_hidden=hidden, mat_hidden=hidden)
     reasons.append(f"stage 2 (geometry frozen): {STAGE2_SAMPLER.n_coarse} locating + "
                    f"{STAGE2_SAMPLER.gradient_samples} gradient samples per ray (stage 1: 32 + 12): the surface no "
-                   "longer moves and beta is small, so a few samples around the crossing carry its weight; 2.3x "
-                   "the stage-2 steps in the same time (stage2_table.md)")
+                   "longer moves and beta is small, so a few samples around the crossing carry its weight; 2.1x "
+                   "the stage-2 steps in the same time, +0.21 dB in 90 s vs +0.10 (stage2_table.md)")
     reasons.append(f"stage 2 takes {AUTO_STAGE2_FRACTION:.0%} of the budget (paper: 10%): its steps are cheap and it "
-                   "keeps gaining (default scene, 600 s, 8 held-out views: 38.66 dB HR PSNR at 30% vs 38.24 at 15%)")
+                   "keeps gaining (default scene, 600 s, 8 held-out views: 38.79 dB HR PSNR at 30% vs 38.22 at 15%; "
+                   "train_table.md)")
     cfg = TrainConfig(preset="auto", fields=fields, sampler=SamplerConfig(), stage2_sampler=STAGE2_SAMPLER,
                       stage2_fraction=AUTO_STAGE2_FRACTION,
                       sr=sr, psf_samples=ns,

@@ -45,7 +45,8 @@ def add_parser(sub) -> None:
                    help="--sr gaussian: the sampler of stage 2 (geometry frozen, BRDF refined); default: auto "
                         "lattice (low-noise Gaussian weights for the BRDF), otherwise the --psf-sampler of stage 1")
     p.add_argument("--stage2-fraction", type=float,
-                   help="share of the run (time budget or --iters), 0..0.9, spent in stage 2 (default: auto 0.3, fast 0.15, paper 0.1)")
+                   help="share of the run (time budget or --iters), 0..0.9, spent in stage 2 "
+                        "(default: auto 0.3, fast 0.15, paper 0.1)")
     p.add_argument("--psf-warmup", type=float,
                    help="--sr gaussian (mc, antithetic): share of training, 0..0.85, that uses one PSF ray per LR "
                         "pixel and N_s times as many pixels per step before switching to N_s rays per pixel "
