@@ -92,7 +92,6 @@ def main(argv=None) -> int:
     from srvol.train import STAGE2_SAMPLER
 
     torch.set_num_threads(2)
-    stage1 = SamplerConfig()
     rows = []
     for name in args.runs.split(","):
         run = WORK / "runs" / name
@@ -100,13 +99,13 @@ def main(argv=None) -> int:
             print(f"{run}: no finished run (python -m bench.bench_train makes it)", file=sys.stderr)
             return 2
         sr = read_config(run)["train"]["sr"]
-        # (PSF sampler, samples per ray): the PSF samplers at stage 1's samples, then the counts of samples
+        # (PSF sampler, samples per ray; None = the run's stage-1 count): the PSF samplers, then the counts
         samplers = [(None, None)]
         if sr == "gaussian":
-            samplers += [("mc", stage1), ("antithetic", stage1), ("lattice", stage1), ("lattice", STAGE2_SAMPLER),
+            samplers += [("mc", None), ("antithetic", None), ("lattice", None), ("lattice", STAGE2_SAMPLER),
                          ("lattice", SamplerConfig(n_coarse=12, n_importance=2, n_uniform=0))]
         else:
-            samplers += [("mc", stage1), ("mc", STAGE2_SAMPLER)]
+            samplers += [("mc", None), ("mc", STAGE2_SAMPLER)]
         base = None
         for s, ray_samples in samplers:
             row = continue_stage2(run, s, ray_samples, args.seconds, args.views)
@@ -133,7 +132,8 @@ def main(argv=None) -> int:
               "least the noise's mean magnitude, and the noise is the image's variation within the pixel: "
               "the noisier the estimate, the stronger the loss's pull towards an image flat within each pixel.",
               "", "Samples per ray: with the geometry frozen, fewer samples make a step cheaper (more steps in "
-              "the same seconds); 32 + 12 is stage 1's count, 16 + 4 auto's stage 2.",
+              f"the same seconds); {next(r['ray_samples'] for r in rows if r['sampler'] == 'mc')} is the runs' "
+              f"stage-1 count, {ray_samples_label(STAGE2_SAMPLER)} auto's stage 2.",
               "", f"Command: `python -m bench.bench_stage2 --runs {args.runs} --seconds {args.seconds:g} "
               f"--views {args.views}`"]
     (RESULTS / "stage2_table.md").write_text("\n".join(lines) + "\n")

@@ -242,15 +242,16 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     batch_stage2 = int(max(64, TrainConfig.batch_stage2 // ns))  # the paper's 700 rays per step
     fields = FieldConfig(kind="grid", sdf_levels=levels, mat_max_res=mat_max, mat_table_log2=table_log2,
                          sdf_hidden=hidden, mat_hidden=hidden)
+    stage1 = SamplerConfig()
     reasons.append(f"stage 2 (geometry frozen): {STAGE2_SAMPLER.n_coarse} locating + "
-                   f"{STAGE2_SAMPLER.gradient_samples} gradient samples per ray (stage 1: {SamplerConfig().n_coarse} + "
-                   f"{SamplerConfig().gradient_samples}): the surface no "
-                   "longer moves and beta is small, so a few samples around the crossing carry its weight; 2.1x "
-                   "the stage-2 steps in the same time, +0.21 dB in 90 s vs +0.10 (stage2_table.md)")
+                   f"{STAGE2_SAMPLER.gradient_samples} gradient samples per ray (stage 1: {stage1.n_coarse} + "
+                   f"{stage1.gradient_samples}): the surface no longer moves and beta is small, so a few samples "
+                   "around the crossing carry its weight; 2.1x the stage-2 steps in the same time, +0.21 dB in 90 s "
+                   "vs +0.10 (stage2_table.md)")
     reasons.append(f"stage 2 takes {AUTO_STAGE2_FRACTION:.0%} of the budget (paper: 10%): its steps are cheap and it "
                    "keeps gaining (default scene, 600 s, 8 held-out views: 38.79 dB HR PSNR at 30% vs 38.22 at 15%; "
                    "train_table.md)")
-    cfg = TrainConfig(preset="auto", fields=fields, sampler=SamplerConfig(), stage2_sampler=STAGE2_SAMPLER,
+    cfg = TrainConfig(preset="auto", fields=fields, sampler=stage1, stage2_sampler=STAGE2_SAMPLER,
                       stage2_fraction=AUTO_STAGE2_FRACTION, sr=sr, psf_samples=ns,
                       psf_sampler="antithetic" if mode == SRMode.GAUSSIAN else "mc",
                       stage2_psf_sampler="lattice" if mode == SRMode.GAUSSIAN else "", patch=4, lattice_cell=cell,
