@@ -37,16 +37,19 @@ def continue_stage2(run: Path, sampler: str | None, ray_samples, seconds: float,
     import torch
 
     from srvol import metrics
-    from srvol.checkpoint import load_model, read_config
+    from srvol.checkpoint import load_model
+    from srvol.config import rays_per_step, read_run_config
     from srvol.data import load_scene
     from srvol.evaluate import render_view
+    from srvol.losses import compute_loss
     from srvol.pixels import PixelBank
-    from srvol.train import TrainConfig, compute_loss, make_optimizers, rays_per_step, set_learning_rate, take_step
+    from srvol.psf import PsfSampler, SRMode
+    from srvol.train import make_optimizers, set_learning_rate, take_step
     from srvol.types import PointLight
 
-    config = read_config(run)
-    cfg = TrainConfig.from_json(config["train"])
-    scene = load_scene(config["scene"]["path"])
+    config = read_run_config(run)
+    cfg = config.train
+    scene = load_scene(config.scene.path)
     fields, info = load_model(run)
     intensity = torch.tensor(info.light_intensity, dtype=torch.float32)
     steps = 0
@@ -60,11 +63,11 @@ def continue_stage2(run: Path, sampler: str | None, ray_samples, seconds: float,
         bank = PixelBank(scene, torch.device("cpu"))
         gen = torch.Generator().manual_seed(seed)
         opts = make_optimizers(fields, cfg, 2)
-        sigma, sr = scene.info.psf_sigma_lr_px, scene.info.sr_factor
+        psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
         t0 = time.time()
         while time.time() - t0 < seconds:
             set_learning_rate(opts, 1 - cfg.stage2_fraction * (1 - (time.time() - t0) / seconds), cfg, 1.0)
-            take_step(opts, compute_loss(fields, bank, cfg, sigma, sr, 2, gen, intensity).total)
+            take_step(opts, compute_loss(fields, bank, cfg, psf, 2, gen, intensity).total)
             steps += 1
     psnr = []
     with torch.no_grad():
@@ -87,9 +90,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import torch
 
-    from srvol.checkpoint import read_config
+    from srvol.config import STAGE2_SAMPLER, read_run_config
     from srvol.render import SamplerConfig
-    from srvol.train import STAGE2_SAMPLER
 
     torch.set_num_threads(2)
     rows = []
@@ -98,7 +100,7 @@ def main(argv=None) -> int:
         if not (run / "model.pt").is_file():
             print(f"{run}: no finished run (python -m bench.bench_train makes it)", file=sys.stderr)
             return 2
-        sr = read_config(run)["train"]["sr"]
+        sr = read_run_config(run).train.sr
         # (PSF sampler, samples per ray; None = the run's stage-1 count): the PSF samplers, then the counts
         samplers = [(None, None)]
         if sr == "gaussian":

@@ -69,14 +69,14 @@ def snapshot_curve(run: Path, scene_dir: Path, view: str) -> list[tuple[float, f
     import torch
 
     from srvol import metrics
-    from srvol.checkpoint import load_model, read_config
+    from srvol.checkpoint import load_model
+    from srvol.config import read_run_config
     from srvol.data import load_scene
     from srvol.evaluate import render_view
-    from srvol.train import TrainConfig
     from srvol.types import PointLight
 
     scene = load_scene(scene_dir)
-    cfg = TrainConfig.from_json(read_config(run)["train"])
+    cfg = read_run_config(run).train
     gt = scene.gt.image("hr", view)
     cam = scene.hr_camera(view)
     out = []
@@ -166,11 +166,10 @@ def scored_on(metrics_path: Path) -> list[str]:
 
 def psf_rays(run: Path) -> str:
     """How the run estimated each LR pixel, from its saved config (the words `srvol train` prints)."""
-    from srvol.checkpoint import read_config
-    from srvol.train import TrainConfig, describe_psf_rays
+    from srvol.config import describe_psf_rays, read_run_config
 
-    config = read_config(run)
-    return describe_psf_rays(TrainConfig.from_json(config["train"]), config["scene"]["psf_sigma_lr_px"])
+    config = read_run_config(run)
+    return describe_psf_rays(config.train, config.scene.psf)
 
 
 def train_only_row(run: Path, args, preset: str, sr: str, wall: float, rss: float, command: str) -> dict:

@@ -116,17 +116,17 @@ def _add_eval(sub) -> None:
 def _run_eval(args) -> int:
     import json
 
-    from srvol.checkpoint import load_model, read_config
+    from srvol.checkpoint import load_model
+    from srvol.config import read_run_config
     from srvol.data import load_scene
     from srvol.evaluate import evaluate_run, write_metrics
-    from srvol.train import TrainConfig
 
     fields, info = load_model(args.run)
     scene_dir = args.scene or info.scene_dir
     if scene_dir is None:
         raise SrvolError("the run does not record its scene: pass --scene")
     scene = load_scene(scene_dir)
-    cfg = TrainConfig.from_json(read_config(args.run)["train"])
+    cfg = read_run_config(args.run).train
     relit_fn = None
     if not args.no_relit:
         relit_fn = _neural_relit_fn(fields)

@@ -29,6 +29,7 @@ import torch
 
 from srvol.errors import SceneError, SrvolError
 from srvol.images import atomic_write_text, read_exr, read_image, write_exr, write_png
+from srvol.psf import DEFAULT_SIGMA_LR_PX, GaussianPSF
 from srvol.types import Camera, PointLight
 
 SCENE_FORMAT = "srvol-scene/1"
@@ -48,10 +49,14 @@ class SceneInfo:
 
     color_space: str | None = None
     light_intensity: tuple[float, float, float] | None = None
-    psf_sigma_lr_px: float = 0.375
+    psf_sigma_lr_px: float = DEFAULT_SIGMA_LR_PX
     sr_factor: int = 4
     train: tuple[str, ...] = ()
     test: tuple[str, ...] = ()
+
+    @property
+    def psf(self) -> GaussianPSF:
+        return GaussianPSF(self.psf_sigma_lr_px, self.sr_factor)
 
     def to_json(self) -> dict:
         d: dict = {"format": SCENE_FORMAT}
@@ -260,7 +265,7 @@ def _parse_info(path: Path) -> SceneInfo:
         psf = raw.get("psf") or {}
         if psf.get("type", "gaussian") != "gaussian":
             raise SceneError(f"{path}: psf type {psf.get('type')!r} unsupported (only 'gaussian')")
-        sigma = float(psf.get("sigma_lr_px", 0.375))
+        sigma = float(psf.get("sigma_lr_px", DEFAULT_SIGMA_LR_PX))
         sr = int(raw.get("sr_factor", 4))
         split = raw.get("split") or {}
         train = tuple(str(s) for s in split.get("train", []))

@@ -14,9 +14,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from srvol.config import TrainConfig, psf_rays_per_pixel, psf_sampler_of_stage, rays_per_step
 from srvol.data import Scene
 from srvol.errors import SrvolError
-from srvol.psf import SRMode, lattice_weights, pixel_offsets
+from srvol.psf import PsfSampler, SRMode
 from srvol.types import Rays
 
 
@@ -88,20 +89,20 @@ class PixelBank:
         o = self.centers[view][:, None, :].expand(P, S, 3)
         return Rays(origins=o.reshape(-1, 3), directions=d.reshape(-1, 3))
 
-    def sample(self, n: int, inside: bool, mode: SRMode, psf_samples: int, sigma: float, sr: int,
-               generator: torch.Generator, antithetic: bool = False) -> PixelBatch:
-        """n pixels (in or out of the mask), each estimated by its own rays (groups of one pixel)."""
+    def sample(self, n: int, inside: bool, psf: PsfSampler, psf_samples: int, generator: torch.Generator,
+               antithetic: bool = False) -> PixelBatch:
+        """n pixels (in or out of the mask), each estimated by its own ``psf_samples`` rays (groups
+        of one pixel)."""
         pool = self.inside if inside else self.outside
         pick = pool[torch.randint(len(pool), (n,), generator=generator).to(pool.device)]
-        offsets = pixel_offsets(mode, n, psf_samples, sigma, sr, generator=generator,
-                                antithetic=antithetic).to(self.device)
+        offsets = psf.offsets(n, psf_samples, generator=generator, antithetic=antithetic).to(self.device)
         uv = self.ij[pick][:, None, :] + 0.5 + offsets
         S = offsets.shape[1]
         weights = torch.full((n, 1, S), 1.0 / S, device=self.device)
         return PixelBatch(rays=self.rays(self.view[pick], uv), weights=weights, target=self.colour[pick],
                           mask=self.mask[pick].float())
 
-    def sample_patches(self, n: int, patch: int, cell: float, sigma: float,
+    def sample_patches(self, n: int, patch: int, cell: float, psf: PsfSampler,
                        generator: torch.Generator) -> PixelBatch:
         """n patches of patch x patch LR pixels around random in-mask pixels, each estimated from
         one shared, randomly shifted lattice of rays (spacing ``cell`` LR px) under the Gaussian PSF."""
@@ -116,7 +117,7 @@ class PixelBank:
         x0 = torch.minimum(x0, (W - patch).float())
         y0 = torch.minimum(y0, (H - patch).float())
         shift = torch.rand(n, 2, generator=generator).to(self.device)
-        pix_off, ray_off, weights = lattice_weights(patch, cell, sigma, shift)
+        pix_off, ray_off, weights = psf.lattice(patch, cell, shift)
         origin = torch.stack([x0, y0], -1)[:, None, :]
         uv = origin + ray_off  # (n, R, 2) continuous LR coordinates
         # pixels of each patch -> rows of the bank (views are stored one after another, row-major)
@@ -125,3 +126,16 @@ class PixelBank:
         rows = rows.reshape(-1)
         return PixelBatch(rays=self.rays(view, uv), weights=weights, target=self.colour[rows],
                           mask=self.mask[rows].float())
+
+
+def sample_pixels(bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int, gen: torch.Generator,
+                  progress: float = 1.0) -> PixelBatch:
+    """The in-mask pixels of one step of ``stage`` and their rays: per-pixel rays or shared lattice
+    patches, as the config's PSF sampler of that stage says (``progress`` in [0, 1]: psf_warmup)."""
+    sampler = psf_sampler_of_stage(cfg, stage)
+    if psf.mode == SRMode.GAUSSIAN and sampler == "lattice":
+        rays_per_patch = psf.lattice_size(cfg.patch, cfg.lattice_cell) ** 2
+        n = max(1, round(rays_per_step(cfg, stage) / rays_per_patch))
+        return bank.sample_patches(n, cfg.patch, cfg.lattice_cell, psf, gen)
+    ns = psf_rays_per_pixel(cfg, stage, progress)
+    return bank.sample(rays_per_step(cfg, stage) // ns, True, psf, ns, gen, antithetic=sampler == "antithetic")

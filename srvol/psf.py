@@ -20,6 +20,7 @@ Offsets are in LR pixels relative to the pixel centre.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
@@ -31,6 +32,24 @@ class SRMode(str, Enum):
     GAUSSIAN = "gaussian"
     BOX = "box"
     NONE = "none"
+
+
+DEFAULT_SIGMA_LR_PX = 0.375
+"""The PSF sigma of a scene that declares none (DESIGN.md section 4) and of ``srvol synth``."""
+
+
+@dataclass(frozen=True)
+class GaussianPSF:
+    """The camera's Gaussian PSF: standard deviation ``sigma_lr_px`` in LR pixels, and the HR/LR
+    ratio ``sr`` (an LR pixel spans sr x sr HR pixels). :attr:`sigma_hr_px` is the one LR -> HR
+    conversion."""
+
+    sigma_lr_px: float = DEFAULT_SIGMA_LR_PX
+    sr: int = 4
+
+    @property
+    def sigma_hr_px(self) -> float:
+        return self.sigma_lr_px * self.sr
 
 
 def _phi(x: np.ndarray) -> np.ndarray:
@@ -46,7 +65,7 @@ def decimation_matrix(n_lr: int, sr: int, sigma_lr_px: float) -> np.ndarray:
     (i + 0.5) * sr. Each weight is the Gaussian's mass over the HR pixel, rows
     renormalised (the image border truncates the kernel).
     """
-    sigma_hr = max(sigma_lr_px * sr, 1e-3)
+    sigma_hr = max(GaussianPSF(sigma_lr_px, sr).sigma_hr_px, 1e-3)
     k = np.arange(n_lr * sr, dtype=np.float64)
     u = (np.arange(n_lr, dtype=np.float64) + 0.5) * sr
     A = _phi((k[None, :] + 1 - u[:, None]) / sigma_hr) - _phi((k[None, :] - u[:, None]) / sigma_hr)
@@ -141,3 +160,27 @@ def lattice_weights(patch: int, cell: float, sigma_lr_px: float, shift: Tensor) 
     d2 = ((rays[:, None, :, :] - pix[None, :, None, :]) ** 2).sum(-1)  # (G, P, R)
     # normalised Gaussian weights; softmax cannot underflow to 0/0 for a PSF much narrower than the cell
     return pix, rays, torch.softmax(-0.5 * d2 / max(sigma_lr_px, 1e-4) ** 2, dim=-1)
+
+
+@dataclass(frozen=True)
+class PsfSampler:
+    """The sub-pixel rays that estimate LR pixels in training: the scene's PSF and the SR mode
+    (gaussian: SuperRVol; box: Vol-SR; none: one ray per pixel). Made once from the scene,
+    asked for per-pixel offsets or shared lattices."""
+
+    mode: SRMode
+    psf: GaussianPSF
+
+    def offsets(self, n_pixels: int, n_samples: int, generator: torch.Generator | None = None,
+                antithetic: bool = False) -> Tensor:
+        """(n_pixels, S, 2) offsets in LR pixels from each pixel's centre (:func:`pixel_offsets`)."""
+        return pixel_offsets(self.mode, n_pixels, n_samples, self.psf.sigma_lr_px, self.psf.sr,
+                             generator=generator, antithetic=antithetic)
+
+    def lattice_size(self, patch: int, cell: float) -> int:
+        """Rays per side of the lattice that serves a patch x patch block (:func:`lattice_size`)."""
+        return lattice_size(patch, cell, self.psf.sigma_lr_px)
+
+    def lattice(self, patch: int, cell: float, shift: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Pixel centres, ray positions and Gaussian weights of shared lattices (:func:`lattice_weights`)."""
+        return lattice_weights(patch, cell, self.psf.sigma_lr_px, shift)

@@ -34,21 +34,20 @@ def _md_table(path: Path) -> str:
 
 
 def build_report(run: Path, extra_dirs: list[Path], commands: list[str]) -> str:
-    from srvol.checkpoint import read_config
-    from srvol.train import TrainConfig, describe_psf_rays
+    from srvol.config import describe_psf_rays, read_run_config
 
-    cfg = read_config(run)  # one clear line for a missing, malformed or foreign config.json
+    cfg = read_run_config(run)  # one clear line for a missing, malformed or foreign config.json
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>srvol report</title>",
              "<style>body{font-family:sans-serif;margin:2em;background:#fafafa;color:#222}"
              "table{border-collapse:collapse}td{border:1px solid #ccc;padding:2px 8px}"
              "pre{background:#eee;padding:8px;overflow-x:auto}h2{margin-top:1.5em}</style></head><body>",
              f"<h1>srvol report: {html.escape(run.name)}</h1>"]
     parts.append("<h2>Training</h2>")
-    t = cfg["train"]
-    rays = describe_psf_rays(TrainConfig.from_json(t), cfg["scene"]["psf_sigma_lr_px"])
-    parts.append(f"<p>preset <b>{html.escape(t['preset'])}</b>, PSF model "
-                 f"<b>{html.escape(t['sr'])}</b>, {html.escape(rays)}.</p>")
-    reasons = cfg["train"].get("reasons") or []
+    t = cfg.train
+    rays = describe_psf_rays(t, cfg.scene.psf)
+    parts.append(f"<p>preset <b>{html.escape(t.preset)}</b>, PSF model "
+                 f"<b>{html.escape(t.sr)}</b>, {html.escape(rays)}.</p>")
+    reasons = t.reasons
     if reasons:
         parts.append("<ul>" + "".join(f"<li>{html.escape(r)}</li>" for r in reasons) + "</ul>")
     for name in ("train_summary.json", "metrics.json"):

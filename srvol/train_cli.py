@@ -69,7 +69,7 @@ def add_parser(sub) -> None:
 
 
 def build_config(scene, args):
-    from srvol.train import auto_config, fast_config, paper_config
+    from srvol.config import auto_config, fast_config, paper_config
 
     if not (math.isfinite(args.capacity) and 0.1 <= args.capacity <= 8):
         raise SrvolError(f"--capacity {args.capacity}: must be between 0.1 and 8")
@@ -119,9 +119,10 @@ def build_config(scene, args):
 
 
 def run_train(args) -> int:
-    from srvol.checkpoint import CONFIG_VERSION, read_config
+    from srvol.config import (RunConfig, SceneRecord, describe_psf_rays, describe_ray_samples, read_run_config,
+                              write_run_config)
     from srvol.data import load_scene
-    from srvol.train import TrainConfig, describe_psf_rays, describe_ray_samples, hr_pixel_size, train
+    from srvol.train import train
 
     t0 = time.time()
     if args.device == "cuda" and not torch.cuda.is_available():
@@ -129,7 +130,7 @@ def run_train(args) -> int:
     scene = load_scene(args.scene)
     run = args.out
     if args.resume:
-        cfg = TrainConfig.from_json(read_config(run)["train"])
+        cfg = read_run_config(run).train
     else:
         if run.exists() and any(run.iterdir()) and not args.force:
             raise SrvolError(f"{run}: already exists (use --resume to continue or --force to replace it)")
@@ -139,18 +140,11 @@ def run_train(args) -> int:
             shutil.rmtree(run)
         cfg = build_config(scene, args)
         run.mkdir(parents=True, exist_ok=True)
-        from srvol.images import atomic_write_text
-
-        config = {"version": CONFIG_VERSION, "train": cfg.to_json(),
-                  "scene": {"path": str(Path(args.scene).resolve()), "sr_factor": scene.info.sr_factor,
-                            "psf_sigma_lr_px": scene.info.psf_sigma_lr_px,
-                            "hr_pixel_size": hr_pixel_size(scene),
-                            "light_intensity": list(scene.info.light_intensity) if scene.info.light_intensity else None}}
-        atomic_write_text(run / "config.json", json.dumps(config, indent=1))
+        write_run_config(run, RunConfig(train=cfg, scene=SceneRecord.of_scene(scene, args.scene)))
     from srvol.fields import SceneFields
 
     n_params = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
-    print(f"preset {cfg.preset}, sr {cfg.sr}, {describe_psf_rays(cfg, scene.info.psf_sigma_lr_px)}, "
+    print(f"preset {cfg.preset}, sr {cfg.sr}, {describe_psf_rays(cfg, scene.info.psf)}, "
           f"{describe_ray_samples(cfg)}, "
           f"{n_params / 1e6:.2f} M parameters")
     print(f"  {cfg.fields.parameter_summary()}")

@@ -20,7 +20,7 @@ from tqdm import tqdm
 from srvol.data import AtomicFolder, SceneInfo, View, camera_to_json, write_scene_folder
 from srvol.errors import SrvolError
 from srvol.images import atomic_write_text, write_exr
-from srvol.psf import blur_decimate
+from srvol.psf import DEFAULT_SIGMA_LR_PX, blur_decimate
 from srvol.synth.render import render
 from srvol.synth.scenes import get_scene
 from srvol.synth.surfaces import MeshSurface, Surface
@@ -42,7 +42,7 @@ class SynthOptions:
     sr: int = 4
     views: int = 40
     test_views: int = 8
-    psf_sigma: float = 0.375
+    psf_sigma: float = DEFAULT_SIGMA_LR_PX
     seed: int = 0
     ss: int = 2
     relit_views: int = 3

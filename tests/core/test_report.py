@@ -13,7 +13,8 @@ import pytest
 from srvol.errors import SrvolError
 from srvol.images import read_png, write_png
 from srvol.report import build_report
-from srvol.train import fast_config
+from srvol.config import RunConfig, SceneRecord, fast_config, write_run_config
+from srvol.psf import GaussianPSF
 
 CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)
 
@@ -23,8 +24,8 @@ def _fake_run(root: Path) -> Path:
     run = root / "run"
     run.mkdir()
     train = replace(fast_config("gaussian"), reasons=("HR pixel footprint 0.0051",))
-    (run / "config.json").write_text(json.dumps({"version": 1, "train": train.to_json(),
-                                                 "scene": {"psf_sigma_lr_px": 0.375}}))
+    write_run_config(run, RunConfig(train=train, scene=SceneRecord(path=None, psf=GaussianPSF(0.375, 4),
+                                                                    hr_pixel_size=0.005, light_intensity=None)))
     (run / "train_summary.json").write_text(json.dumps({"iterations": 4732, "train_seconds": 597.0}))
     (run / "metrics.json").write_text(json.dumps({"psnr_hr": 38.39, "normal_mae_deg": 3.10}))
     yy, xx = np.mgrid[0:120, 0:160] / 120.0

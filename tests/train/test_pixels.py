@@ -4,7 +4,7 @@ import torch
 
 from srvol.data import load_scene
 from srvol.pixels import PixelBank
-from srvol.psf import SRMode
+from srvol.psf import GaussianPSF, PsfSampler, SRMode
 
 
 def _landing(bank, scene, batch, samples):
@@ -27,7 +27,7 @@ def test_none_box_gaussian_offsets(default_scene):
     sr = scene.info.sr_factor
     for mode, S in ((SRMode.NONE, 1), (SRMode.BOX, sr * sr), (SRMode.GAUSSIAN, 64)):
         g = torch.Generator().manual_seed(1)
-        batch = bank.sample(6, True, mode, S, 0.375, sr, g)
+        batch = bank.sample(6, True, PsfSampler(mode, GaussianPSF(0.375, sr)), S, g)
         samples = batch.weights.shape[2]
         assert batch.weights.shape == (6, 1, samples) and torch.allclose(batch.weights, torch.tensor(1.0 / samples))
         uv = _landing(bank, scene, batch, samples)
@@ -66,7 +66,7 @@ def test_lattice_patches_share_rays_among_their_pixels(default_scene):
     scene = load_scene(default_scene)
     bank = PixelBank(scene, torch.device("cpu"))
     g = torch.Generator().manual_seed(3)
-    batch = bank.sample_patches(3, 4, 0.5, 0.375, g)
+    batch = bank.sample_patches(3, 4, 0.5, PsfSampler(SRMode.GAUSSIAN, GaussianPSF(0.375, 4)), g)
     G, P, R = batch.weights.shape
     assert (G, P) == (3, 16) and batch.n_rays == 3 * R and batch.n_pixels == 48
     uv = _landing(bank, scene, batch, R)  # (G, R, 2)

@@ -17,11 +17,14 @@ from srvol.data import load_scene
 from srvol.errors import SrvolError
 from srvol.fields import SceneFields
 from srvol.pixels import PixelBank
-from srvol.psf import lattice_size
+from srvol.config import (MTF_FLOOR, STAGE2_SAMPLER, TrainConfig, auto_config, describe_psf_rays,
+                          describe_ray_samples, fast_config, paper_config, psf_rays_per_pixel, psf_sampler_of_stage,
+                          recoverable_cell_hr_px, sampler_of_stage)
+from srvol.losses import compute_loss
+from srvol.pixels import sample_pixels
+from srvol.psf import PsfSampler, SRMode, lattice_size
 from srvol.render import SamplerConfig
-from srvol.train import (MTF_FLOOR, STAGE2_SAMPLER, TrainConfig, auto_config, check_not_collapsed, compute_loss,
-                         describe_psf_rays, describe_ray_samples, fast_config, paper_config, psf_rays_per_pixel,
-                         psf_sampler_of_stage, recoverable_cell_hr_px, sample_pixels, sampler_of_stage, train)
+from srvol.train import check_not_collapsed, train
 
 
 def _tiny(cfg: TrainConfig, iters: int) -> TrainConfig:
@@ -38,8 +41,8 @@ def _fixed_loss(fields, cfg, scene) -> float:
     torch.manual_seed(123)
     I = torch.tensor(scene.info.light_intensity)
     big = replace(cfg, batch_in=256, batch_out=128, psf_samples=min(cfg.psf_samples, 4))
-    return float(compute_loss(fields, bank, big, scene.info.psf_sigma_lr_px, scene.info.sr_factor, 1, gen,
-                              I).total.detach())
+    psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
+    return float(compute_loss(fields, bank, big, psf, 1, gen, I).total.detach())
 
 
 def _load_fields(run: Path, cfg: TrainConfig) -> SceneFields:
@@ -108,15 +111,14 @@ def test_resume_after_kill_loses_at_most_one_checkpoint_interval(default_scene, 
     run = tmp_path / "run"
     p = _srvol("train", str(default_scene), "--out", str(run), "--preset", "fast", "--iters", "16",
                "--checkpoint-every", "4", "--quiet")
-    ckpt = run / "checkpoints" / "last.pt"
+    record = run / "checkpoints" / "last.json"  # written after its weights: names a complete file
     deadline = time.time() + 120
-    while not ckpt.exists() and time.time() < deadline and p.poll() is None:
+    while not record.exists() and time.time() < deadline and p.poll() is None:
         time.sleep(0.2)
-    assert ckpt.exists(), p.communicate()[1]
+    assert record.exists(), p.communicate()[1]
     p.send_signal(signal.SIGKILL)
     p.wait()
-    state = torch.load(ckpt, weights_only=False)["state"]
-    killed_at = state["step"]
+    killed_at = json.loads(record.read_text())["state"]["step"]
     assert killed_at % 4 == 0 and 0 < killed_at < 16
     q = _srvol("train", str(default_scene), "--out", str(run), "--resume", "--quiet")
     out, err = q.communicate(timeout=300)
@@ -220,9 +222,9 @@ def test_psf_warmup_trades_rays_per_pixel_for_pixels_at_equal_rays(default_scene
     assert auto_config(scene, "none", 60.0).psf_warmup == 0.0
     assert psf_rays_per_pixel(replace(cfg, psf_sampler="lattice"), 1, 0.0) == 4
     bank = PixelBank(scene, torch.device("cpu"))
-    sig, sr = scene.info.psf_sigma_lr_px, scene.info.sr_factor
-    early = sample_pixels(bank, cfg, sig, sr, 1, torch.Generator().manual_seed(0), progress=0.1)
-    late = sample_pixels(bank, cfg, sig, sr, 1, torch.Generator().manual_seed(0), progress=0.6)
+    psf = PsfSampler(SRMode.GAUSSIAN, scene.info.psf)
+    early = sample_pixels(bank, cfg, psf, 1, torch.Generator().manual_seed(0), progress=0.1)
+    late = sample_pixels(bank, cfg, psf, 1, torch.Generator().manual_seed(0), progress=0.6)
     assert len(early.target) == 4 * len(late.target) == 4 * cfg.batch_in
     assert early.n_rays == late.n_rays == cfg.batch_in * 4
 
@@ -276,15 +278,15 @@ def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_sc
     cfg = auto_config(scene, "gaussian", 60.0)
     assert (psf_sampler_of_stage(cfg, 1), psf_sampler_of_stage(cfg, 2)) == ("antithetic", "lattice")
     bank = PixelBank(scene, torch.device("cpu"))
-    sig, sr = scene.info.psf_sigma_lr_px, scene.info.sr_factor
-    one = sample_pixels(bank, cfg, sig, sr, 1, torch.Generator().manual_seed(0))
-    two = sample_pixels(bank, cfg, sig, sr, 2, torch.Generator().manual_seed(0))
+    psf = PsfSampler(SRMode.GAUSSIAN, scene.info.psf)
+    one = sample_pixels(bank, cfg, psf, 1, torch.Generator().manual_seed(0))
+    two = sample_pixels(bank, cfg, psf, 2, torch.Generator().manual_seed(0))
     assert one.n_rays == 2 * len(one.target) == 2 * 256  # an antithetic pair of its own per pixel
-    k = lattice_size(cfg.patch, cfg.lattice_cell, sig)  # one k x k lattice serves 4x4 neighbouring pixels
+    k = lattice_size(cfg.patch, cfg.lattice_cell, psf.psf.sigma_lr_px)  # one k x k lattice serves 4x4 neighbouring pixels
     assert two.n_rays == len(two.target) // cfg.patch ** 2 * k * k
     none = auto_config(scene, "none", 60.0)
     assert abs(two.n_rays - none.batch_stage2) <= 0.2 * none.batch_stage2
-    assert "stage 2: shared" in describe_psf_rays(cfg, sig)
+    assert "stage 2: shared" in describe_psf_rays(cfg, scene.info.psf)
 
     ap = argparse.ArgumentParser()
     add_parser(ap.add_subparsers())

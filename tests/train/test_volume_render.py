@@ -94,7 +94,7 @@ def test_colocated_render_matches_closed_form_at_the_centre():
 def test_stage2_samples_per_ray_match_a_dense_render_once_the_surface_is_fixed():
     """With beta small the VolSDF weight sits within a few beta of the first crossing: stage 2's
     16 locating + 4 gradient samples give the colour of a 128 + 68-sample render to 0.5% on average."""
-    from srvol.train import STAGE2_SAMPLER
+    from srvol.config import STAGE2_SAMPLER
 
     f = _sphere_fields(0.5, 0.001)
     g = torch.Generator().manual_seed(0)

@@ -1,0 +1,94 @@
+"""The training loss (DESIGN.md section 3), each term normalised by its batch size:
+
+    L = L1(LR pixel estimate, input)  over in-mask pixels
+      + lambda1 * mean (|grad d| - 1)^2  over random points and the ray samples
+      + lambda2 * BCE(opacity, mask)     over in- and out-of-mask pixels
+
+An LR pixel is estimated from the rays the stage's PSF sampler gives it
+(:func:`srvol.pixels.sample_pixels`). Stage 2 (geometry frozen) keeps the photometric term only.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from srvol.config import TrainConfig, sampler_of_stage
+from srvol.fields import SceneFields
+from srvol.pixels import PixelBank, PixelBatch, sample_pixels
+from srvol.psf import PsfSampler
+from srvol.render import volume_render
+from srvol.types import PointLight, Rays
+
+
+@dataclass(frozen=True)
+class LossTerms:
+    """One step's loss: ``total`` carries the graph; the terms and the train PSNR are for the log."""
+
+    total: Tensor
+    photometric: float
+    eikonal: float
+    mask: float
+    psnr: float
+
+
+def photometric_l1(estimate: Tensor, batch: PixelBatch) -> Tensor:
+    """Mean L1 over the batch's foreground pixels (a lattice patch may reach past the silhouette)."""
+    fg = batch.mask
+    return ((estimate - batch.target).abs().mean(-1) * fg).sum() / fg.sum().clamp_min(1.0)
+
+
+def eikonal(gradients: Tensor) -> Tensor:
+    """mean (|grad d| - 1)^2 over the given SDF gradients (N, 3)."""
+    return ((gradients.norm(dim=-1) - 1.0) ** 2).mean()
+
+
+def mask_bce(opacity_in: Tensor, mask_in: Tensor, opacity_out: Tensor) -> Tensor:
+    """BCE of accumulated opacity against the mask: in-mask pixels (their PSF estimates, target the
+    mask value) and rays outside the silhouette (target 0)."""
+    op = torch.cat([opacity_in, opacity_out]).clamp(1e-4, 1 - 1e-4)
+    return F.binary_cross_entropy(op, torch.cat([mask_in, torch.zeros_like(opacity_out)]))
+
+
+def train_psnr(estimate: Tensor, batch: PixelBatch) -> float:
+    """PSNR of the batch's foreground estimates (clamped to [0, 1]) against their targets."""
+    fg = batch.mask
+    sq = (estimate.detach().clamp(0, 1) - batch.target.clamp(0, 1)) ** 2
+    mse = ((sq.mean(-1) * fg).sum() / fg.sum().clamp_min(1.0)).clamp_min(1e-10)
+    return float(-10 * torch.log10(mse))
+
+
+def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
+                 gen: torch.Generator, intensity: Tensor, progress: float = 1.0) -> LossTerms:
+    """L1 on in-mask pixels (PSF estimates) + lambda_e eikonal + lambda_m mask BCE (stage 1 only).
+    ``progress`` in [0, 1] (share of the run done) selects the PSF rays per pixel (psf_warmup)."""
+    train_geo = stage == 1
+    batch = sample_pixels(bank, cfg, psf, stage, gen, progress)
+    rays = batch.rays
+    use_mask = train_geo and bank.has_masks and len(bank.outside) > 0
+    if use_mask:
+        out = bank.sample(cfg.batch_out, False, psf, 1, gen)
+        rays = Rays(torch.cat([rays.origins, out.rays.origins]), torch.cat([rays.directions, out.rays.directions]))
+    light = PointLight(position=rays.origins, intensity=intensity)  # co-located: at each ray's camera
+    n_pix_rays = batch.n_rays
+    shade_rays = torch.arange(len(rays), device=rays.origins.device) < n_pix_rays
+    vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=train_geo,
+                       shade_rays=shade_rays)
+    rgb = batch.estimate(vr.result.rgb[:n_pix_rays])
+    photometric = photometric_l1(rgb, batch)
+    total = photometric
+    eik = torch.zeros(())
+    mask_loss = torch.zeros(())
+    if train_geo:
+        pts = (torch.rand(cfg.batch_eikonal, 3, generator=gen) * 2 - 1).to(rgb.device)
+        _, g_rand = fields.sdf_and_gradient(pts, create_graph=True)
+        eik = eikonal(torch.cat([g_rand, vr.sdf_gradients]))
+        total = total + cfg.lambda_eikonal * eik
+        if use_mask:
+            op_in = batch.estimate(vr.result.opacity[:n_pix_rays, None])[:, 0]
+            mask_loss = mask_bce(op_in, batch.mask, vr.result.opacity[n_pix_rays:])
+            total = total + cfg.lambda_mask * mask_loss
+    return LossTerms(total=total, photometric=float(photometric.detach()), eikonal=float(eik.detach()),
+                     mask=float(mask_loss.detach()), psnr=train_psnr(rgb, batch))
