@@ -81,3 +81,72 @@ def test_the_scan_sees_relative_and_dynamic_imports(tmp_path):
     (fake / "report_html.py").write_text("import srvol.export\n")
     got = offenders("srvol", ("srvol.export", "srvol.relight", "srvol.train*"), core_exempt, root=tmp_path)
     assert got == ["srvol/sub/bad.py: srvol.export.usd, srvol.relight, srvol.relight.cli, srvol.training_loop"]
+
+
+def import_graph(folder: str, root: Path = ROOT) -> dict[str, set[str]]:
+    """Module -> the modules of the same package it imports (lazy imports inside functions count:
+    a cycle hidden in a function is still a cycle)."""
+    package = {"srvol": "srvol", "export": "srvol.export", "relight": "srvol.relight"}[folder]
+    modules = {}
+    for path in sorted((root / folder).rglob("*.py")):
+        rel = path.relative_to(root / folder).with_suffix("")
+        parts = [p for p in rel.parts if p != "__init__"]
+        modules[".".join([package, *parts])] = path
+    graph = {}
+    for name, path in modules.items():
+        imported = imported_modules(path, root)
+        graph[name] = {m for m in modules if m != name and m != package and m in imported}
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str]:
+    """One import cycle as [a, b, ..., a], or [] when the graph has none (depth-first search)."""
+    state: dict[str, int] = {}  # 1 = on the current path, 2 = done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str]:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt):] + [nxt]
+            if nxt not in state:
+                found = visit(nxt)
+                if found:
+                    return found
+        state[node] = 2
+        path.pop()
+        return []
+
+    for node in sorted(graph):
+        if node not in state:
+            found = visit(node)
+            if found:
+                return found
+    return []
+
+
+def test_find_cycle_on_worked_examples():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+
+
+@pytest.mark.parametrize("folder", ["srvol", "export", "relight"])
+def test_no_import_cycle(folder):
+    assert find_cycle(import_graph(folder)) == []
+
+
+def test_readers_of_a_run_import_its_config_not_the_training_loop():
+    """eval, report and the composition root read config.json through srvol.config."""
+    for name in ("cli.py", "report.py", "evaluate.py", "checkpoint.py"):
+        assert not any(m == "srvol.train" or m.startswith("srvol.train.")
+                       for m in imported_modules(ROOT / "srvol" / name)), name
+
+
+MAX_LINES = 400
+
+
+def test_no_core_module_is_over_400_lines():
+    long = {str(p.relative_to(ROOT)): n for p in sorted((ROOT / "srvol").rglob("*.py"))
+            if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    assert long == {}
