@@ -9,6 +9,7 @@ An LR pixel is estimated from the rays the stage's PSF sampler gives it
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -25,13 +26,26 @@ from srvol.types import PointLight, Rays
 
 @dataclass(frozen=True)
 class LossTerms:
-    """One step's loss: ``total`` carries the graph; the terms and the train PSNR are for the log."""
+    """One step's loss: ``total`` carries the graph; the terms are for the log. ``squared_error``
+    is the sum over the step's foreground pixels of their mean squared error (colours clamped to
+    [0, 1]) and ``pixels`` their count: PSNR over several steps is -10 log10(sum SE / sum pixels)."""
 
     total: Tensor
     photometric: float
     eikonal: float
     mask: float
-    psnr: float
+    squared_error: float
+    pixels: float
+
+    @property
+    def psnr(self) -> float:
+        """This step's train PSNR (a few hundred pixels: noisy, see :func:`psnr_of`)."""
+        return psnr_of(self.squared_error, self.pixels)
+
+
+def psnr_of(squared_error: float, pixels: float) -> float:
+    """PSNR of a summed per-pixel squared error over ``pixels`` pixels (signal peak 1)."""
+    return float(-10 * math.log10(max(squared_error / max(pixels, 1.0), 1e-10)))
 
 
 def photometric_l1(estimate: Tensor, batch: PixelBatch) -> Tensor:
@@ -52,12 +66,11 @@ def mask_bce(opacity_in: Tensor, mask_in: Tensor, opacity_out: Tensor) -> Tensor
     return F.binary_cross_entropy(op, torch.cat([mask_in, torch.zeros_like(opacity_out)]))
 
 
-def train_psnr(estimate: Tensor, batch: PixelBatch) -> float:
-    """PSNR of the batch's foreground estimates (clamped to [0, 1]) against their targets."""
+def squared_error(estimate: Tensor, batch: PixelBatch) -> tuple[float, float]:
+    """(sum over foreground pixels of the mean squared error of their clamped colours, pixel count)."""
     fg = batch.mask
     sq = (estimate.detach().clamp(0, 1) - batch.target.clamp(0, 1)) ** 2
-    mse = ((sq.mean(-1) * fg).sum() / fg.sum().clamp_min(1.0)).clamp_min(1e-10)
-    return float(-10 * torch.log10(mse))
+    return float((sq.mean(-1) * fg).sum()), float(fg.sum())
 
 
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
@@ -90,5 +103,6 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
             op_in = batch.estimate(vr.result.opacity[:n_pix_rays, None])[:, 0]
             mask_loss = mask_bce(op_in, batch.mask, vr.result.opacity[n_pix_rays:])
             total = total + cfg.lambda_mask * mask_loss
+    se, pixels = squared_error(rgb, batch)
     return LossTerms(total=total, photometric=float(photometric.detach()), eikonal=float(eik.detach()),
-                     mask=float(mask_loss.detach()), psnr=train_psnr(rgb, batch))
+                     mask=float(mask_loss.detach()), squared_error=se, pixels=pixels)

@@ -314,3 +314,15 @@ def test_stage2_traces_fewer_samples_per_ray_for_every_sr_mode(default_scene):
     del old["stage2_sampler"]
     assert sampler_of_stage(TrainConfig.from_json(old), 2) == cfg.sampler
     assert paper_config().stage2_sampler is None  # the paper's 98 samples in both stages
+
+
+def test_the_logged_psnr_pools_the_pixels_of_the_last_steps():
+    """Two steps of 100 pixels, squared errors summing to 1.0 and 0.01: the pooled MSE is
+    1.01 / 200 = 0.00505, 22.97 dB -- not the mean of the steps' 20 dB and 40 dB."""
+    from collections import deque
+
+    from srvol.train import recent_psnr
+
+    recent = deque([(1.0, 100.0), (0.01, 100.0)], maxlen=25)
+    assert abs(recent_psnr(recent) - (-10 * math.log10(1.01 / 200))) < 1e-9
+    assert math.isnan(recent_psnr(deque()))

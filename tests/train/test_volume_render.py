@@ -110,3 +110,46 @@ def test_stage2_samples_per_ray_match_a_dense_render_once_the_surface_is_fixed()
     assert dense.opacity.min() > 0.99 and few.opacity.min() > 0.99
     err = ((few.rgb - dense.rgb).abs() / dense.rgb.mean()).detach()
     assert float(err.mean()) < 0.005 and float(err.max()) < 0.05  # the largest at grazing rays near the rim
+
+
+def test_refinement_brackets_a_plate_thinner_than_the_sample_spacing():
+    """One ray along z through a plate |z| <= 0.01, samples at t = 0, 0.4, 0.8 (z = -0.5, -0.1, 0.3;
+    d = 0.49, 0.09, 0.29): no sample inside, no sign change. A distance moves by at most the
+    distance travelled, so the surface can lie between two samples only if d + d' < their spacing:
+    0.49 + 0.09 > 0.4 (not in the first interval), 0.09 + 0.29 < 0.4 (maybe in the second). Three
+    samples there (t = 0.5, 0.6, 0.7) put one inside the plate, and the crossing is found at its
+    near face: t = 0.4 + 0.1 * 0.09 / (0.09 + 0.01) = 0.49."""
+    from srvol.render import first_crossing, refine_first_possible_crossing
+
+    def sdf_at(t):  # the ray starts at z = -0.5, so z = t - 0.5
+        return (t - 0.5).abs() - 0.01
+
+    t = torch.tensor([[0.0, 0.4, 0.8]])  # z = -0.5, -0.1, 0.3: d = 0.49, 0.09, 0.29
+    d = sdf_at(t)
+    assert not first_crossing(t, d)[1].any()  # the plate at z in [-0.01, 0.01] lies between samples
+    t2, d2 = refine_first_possible_crossing(t, d, sdf_at, 3)
+    assert torch.allclose(t2, torch.tensor([[0.0, 0.4, 0.5, 0.6, 0.7, 0.8]]))
+    root, has = first_crossing(t2, d2)
+    assert has.all() and abs(float(root) - 0.49) < 1e-5  # the plate's near face, z = -0.01
+
+
+def test_the_locating_pass_finds_thin_plates_that_coarse_samples_step_over():
+    """A plate 0.01 thick seen face-on from 2.6 away: 32 coarse samples over the unit sphere's chord
+    (0.06 apart) land inside it for about half the rays; with 8 refining samples every ray finds it."""
+    from types import SimpleNamespace
+
+    from srvol.render import sample_along_rays
+
+    g = torch.Generator().manual_seed(0)
+    n = 2000
+    origins = torch.cat([torch.rand(n, 2, generator=g) * 0.6 - 0.3, torch.full((n, 1), 2.6)], -1)
+    targets = torch.cat([torch.rand(n, 2, generator=g) * 0.6 - 0.3, torch.zeros(n, 1)], -1)
+    rays = Rays(origins, torch.nn.functional.normalize(targets - origins, dim=-1))
+    plate = SimpleNamespace(sdf=lambda x: x[:, 2].abs() - 0.005, beta=torch.tensor(1e-3))
+
+    def found(cfg):
+        t = sample_along_rays(plate, rays, cfg, jitter=False).t
+        return float((plate.sdf(rays.at(t).reshape(-1, 3)).reshape(t.shape) < 0).any(-1).float().mean())
+
+    assert found(SamplerConfig()) < 0.7
+    assert found(SamplerConfig(n_refine=8)) == 1.0
