@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from srvol.brdf import shade
+from srvol.cli_parser import OneLineParser
 from srvol.export.asset import load_asset
 from srvol.export.bake import BakeOptions, bake, tangent_frames
 from srvol.export.blender import BlenderView, run_blender_check
@@ -212,12 +213,14 @@ def trained_export(run_dir: Path, work: Path) -> tuple[dict, list[str]]:
     return data, lines
 
 
-def main(argv: list[str] | None = None) -> None:
-    import argparse
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", type=Path, default=DEFAULT_RUN, help="trained run for section 4 (skipped if missing)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "2")))
     RESULTS.mkdir(parents=True, exist_ok=True)
     sdf_fn, material_fn = _builtin_fields("bumpy")

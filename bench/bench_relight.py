@@ -245,9 +245,9 @@ def write_results(acc: list[AccuracyRow], timing: list[TimingRow], extra: dict) 
 
 
 def main(argv: list[str] | None = None) -> None:
-    import argparse
+    from srvol.cli_parser import OneLineParser
 
-    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
+    OneLineParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
     from srvol.export.asset import load_asset
     from srvol.sheets import error_to_rgb, write_sheet
 

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from srvol.cli_parser import OneLineParser
+
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results"
 WORK = ROOT / "work"
@@ -78,13 +80,17 @@ def continue_stage2(run: Path, sampler: str | None, ray_samples, seconds: float,
             "views": scene.test[:views], "rays_per_step": rays_per_step(cfg, 2), "psf_samples": cfg.psf_samples}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", default="bumpy_auto_gaussian_600s,bumpy_auto_none_600s",
                     help="run folders under bench/work/runs (made by bench.bench_train)")
     ap.add_argument("--seconds", type=float, default=90.0, help="extra stage-2 seconds per row (default 90)")
     ap.add_argument("--views", type=int, default=2, help="held-out views scored")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     import torch
 
     from srvol.checkpoint import read_config

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.bench_train import RESULTS, WORK, _run, ensure_scene, scored_on
+from srvol.cli_parser import OneLineParser
 
 STUDY = WORK / "study"
 EVAL_VIEWS = ("040", "041")
@@ -379,14 +380,19 @@ def chart_bars(name: str, rows: list[Row], ref: Row | None) -> None:
     fig.savefig(RESULTS / f"study_{name}.png", dpi=110)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--budget", type=float, default=120.0, help="training seconds per run (default 120)")
     ap.add_argument("--only", default="sweep,stability,capacity", help="comma list of studies")
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument("--collect", action="store_true", help="reuse finished runs; rebuild tables and charts")
     mode.add_argument("--from-results", action="store_true",
                       help="no training: rebuild the tables and charts from bench/results/study_*.json")
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
     args = ap.parse_args(argv)
     studies = [s for s in args.only.split(",") if s]
     unknown = set(studies) - {"sweep", "stability", "capacity"}

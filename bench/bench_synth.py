@@ -123,9 +123,9 @@ def write_tables(rows: list[SynthRow]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import argparse
+    from srvol.cli_parser import OneLineParser
 
-    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
+    OneLineParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_synth_") as tmp:
         for name in SCENES:

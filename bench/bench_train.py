@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from srvol.cli_parser import OneLineParser
+
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results"
 WORK = ROOT / "work"
@@ -89,8 +91,8 @@ def snapshot_curve(run: Path, scene_dir: Path, view: str) -> list[tuple[float, f
     return out
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="bumpy")
     ap.add_argument("--budget", type=float, default=600.0)
     ap.add_argument("--variants", default=",".join(DEFAULT_VARIANTS),
@@ -105,6 +107,11 @@ def main(argv=None) -> int:
                          "views on a CPU)")
     ap.add_argument("--collect", action="store_true",
                     help="do not train: rebuild the table and chart from the runs already in bench/work/runs")
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
     args = ap.parse_args(argv)
     scene = ensure_scene(args.scene)
     from srvol.data import load_scene
