@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.paths import write_result
 from srvol.cli_parser import OneLineParser
 
 ROOT = Path(__file__).resolve().parent
@@ -120,7 +121,7 @@ def main(argv=None) -> int:
             rows.append(row)
             print(json.dumps(row), flush=True)
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "stage2_table.json").write_text(json.dumps(rows, indent=1))
+    write_result(RESULTS / "stage2_table.json", json.dumps(rows, indent=1))
     lines = [f"# Stage 2 (geometry frozen): {args.seconds:.0f} more seconds per sampler", "",
              "| run | sr | stage-2 PSF sampler | samples per ray (locating + gradient) | extra s | steps | HR PSNR | "
              "gain (dB) |", "|---|---|---|---|---|---|---|---|"]
@@ -142,7 +143,7 @@ def main(argv=None) -> int:
               f"stage-1 count, {ray_samples_label(STAGE2_SAMPLER)} auto's stage 2.",
               "", f"Command: `python -m bench.bench_stage2 --runs {args.runs} --seconds {args.seconds:g} "
               f"--views {args.views}`"]
-    (RESULTS / "stage2_table.md").write_text("\n".join(lines) + "\n")
+    write_result(RESULTS / "stage2_table.md", "\n".join(lines) + "\n")
     return 0
 
 
