@@ -33,7 +33,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench.paths import write_result
 from srvol.brdf import shade
+from srvol.cli_parser import OneLineParser
 from srvol.export.asset import load_asset
 from srvol.export.bake import BakeOptions, bake, tangent_frames
 from srvol.export.blender import BlenderView, run_blender_check
@@ -152,14 +154,6 @@ def naive_extraction(sdf_fn, resolution: int = 512) -> tuple[float, int]:
 DEFAULT_RUN = Path(__file__).parent / "work" / "runs" / "bumpy_auto_gaussian_600s"
 
 
-def _shown(path: Path) -> str:
-    """A path relative to the repository when it lies inside it."""
-    try:
-        return str(path.resolve().relative_to(Path(__file__).resolve().parent.parent))
-    except ValueError:
-        return str(path)
-
-
 def trained_export(run_dir: Path, work: Path) -> tuple[dict, list[str]]:
     """Export a trained run with auto settings; extraction vs the previous recipe; asset vs neural."""
     from bench.bench_relight import asset_vs_neural
@@ -184,13 +178,13 @@ def trained_export(run_dir: Path, work: Path) -> tuple[dict, list[str]]:
     print(f"trained export {rep.seconds['total']:.2f} s; extraction {t_new:.2f} s vs previous {t_old:.2f} s; "
           f"asset vs neural {vs_neural:.2f} dB")
     s, c = rep.seconds, rep.cpu_seconds
-    data = {"run": _shown(run_dir), "export": rep.to_json(), "asset_vs_neural_db": vs_neural,
+    data = {"run": str(run_dir), "export": rep.to_json(), "asset_vs_neural_db": vs_neural,
             "extraction": {"auto": {"resolution": rep.resolution, "seconds": t_new,
                                     "sdf_evaluations": new.sdf_evaluations, "faces": len(new.mesh.faces)},
                            "previous": {"resolution": old_res, "seconds": t_old,
                                         "sdf_evaluations": old.sdf_evaluations, "faces": len(old.mesh.faces)}}}
     lines = [f"## Trained model: `{run_dir.name}`", "",
-             f"Command inside the benchmark: `srvol export {_shown(run_dir)} --format usd,glb --out ASSET` (all settings auto).", "",
+             f"Command inside the benchmark: `srvol export {run_dir} --format usd,glb --out ASSET` (all settings auto).", "",
              "| stage | wall s | CPU s | detail |", "|---|---:|---:|---|",
              f"| extract | {s['extract']:.2f} | {c['extract']:.2f} | {rep.resolution}^3 (1/4 of the SDF's finest grid cell, "
              f"HR pixel {info.hr_pixel_size:.4f}), {rep.full_faces} faces |",
@@ -212,12 +206,14 @@ def trained_export(run_dir: Path, work: Path) -> tuple[dict, list[str]]:
     return data, lines
 
 
-def main(argv: list[str] | None = None) -> None:
-    import argparse
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def build_parser() -> OneLineParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", type=Path, default=DEFAULT_RUN, help="trained run for section 4 (skipped if missing)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "2")))
     RESULTS.mkdir(parents=True, exist_ok=True)
     sdf_fn, material_fn = _builtin_fields("bumpy")
@@ -278,7 +274,7 @@ def main(argv: list[str] | None = None) -> None:
         else:
             trained_lines = [f"## Trained model: skipped ({args.run} not found; run `python -m bench.bench_train` first)", ""]
             print(trained_lines[0])
-        (RESULTS / "export_table.json").write_text(json.dumps(result, indent=1, default=str))
+        write_result(RESULTS / "export_table.json", json.dumps(result, indent=1, default=str))
         s, c = report.seconds, report.cpu_seconds
         lines = ["# Export benchmark (2 CPU cores)", "",
                  "Sections 1-3 use the analytic `bumpy` GT fields (exact, 2048^2 textures, every format); "
@@ -311,7 +307,7 @@ def main(argv: list[str] | None = None) -> None:
                  f"| exposure scale | {scale:.4f} |",
                  f"| point light | I = {VIEW.intensity} W/sr -> P = 4 pi I = {4 * math.pi * VIEW.intensity:.1f} W |", ""]
         lines += trained_lines
-        (RESULTS / "export_table.md").write_text("\n".join(lines))
+        write_result(RESULTS / "export_table.md", "\n".join(lines))
         print("\n".join(lines))
     finally:
         shutil.rmtree(work, ignore_errors=True)

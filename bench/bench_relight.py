@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench.paths import write_result
 from srvol.relight.compare import NamedScene, compare_relit, write_comparison_sheet
 from srvol.relight.edits import parse_material
 from srvol.relight.render import AssetScene, FieldScene, RelightScene, render_scene
@@ -238,16 +239,16 @@ def write_results(acc: list[AccuracyRow], timing: list[TimingRow], extra: dict) 
     lines += ["", "| check | value | target |", "|---|---|---|"]
     lines += [f"| {k} | {v['value']} | {v['target']} |" for k, v in extra.items()]
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "relight_table.md").write_text("\n".join(lines) + "\n")
-    (RESULTS / "relight_table.json").write_text(json.dumps(
+    write_result(RESULTS / "relight_table.md", "\n".join(lines) + "\n")
+    write_result(RESULTS / "relight_table.json", json.dumps(
         {"accuracy": [asdict(r) for r in acc], "timing": [asdict(t) for t in timing], "checks": extra}, indent=1))
     print("\n".join(lines))
 
 
 def main(argv: list[str] | None = None) -> None:
-    import argparse
+    from srvol.cli_parser import OneLineParser
 
-    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
+    OneLineParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
     from srvol.export.asset import load_asset
     from srvol.sheets import error_to_rgb, write_sheet
 

@@ -20,6 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.paths import write_result
+from srvol.cli_parser import OneLineParser
+
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results"
 WORK = ROOT / "work"
@@ -81,13 +84,17 @@ def continue_stage2(run: Path, sampler: str | None, ray_samples, seconds: float,
             "views": scene.test[:views], "rays_per_step": rays_per_step(cfg, 2), "psf_samples": cfg.psf_samples}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", default="bumpy_auto_gaussian_600s,bumpy_auto_none_600s",
                     help="run folders under bench/work/runs (made by bench.bench_train)")
     ap.add_argument("--seconds", type=float, default=90.0, help="extra stage-2 seconds per row (default 90)")
     ap.add_argument("--views", type=int, default=2, help="held-out views scored")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     import torch
 
     from srvol.config import STAGE2_SAMPLER, read_run_config
@@ -116,7 +123,7 @@ def main(argv=None) -> int:
             rows.append(row)
             print(json.dumps(row), flush=True)
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "stage2_table.json").write_text(json.dumps(rows, indent=1))
+    write_result(RESULTS / "stage2_table.json", json.dumps(rows, indent=1))
     lines = [f"# Stage 2 (geometry frozen): {args.seconds:.0f} more seconds per sampler", "",
              "| run | sr | stage-2 PSF sampler | samples per ray (locating + gradient) | extra s | steps | HR PSNR | "
              "gain (dB) |", "|---|---|---|---|---|---|---|---|"]
@@ -138,7 +145,7 @@ def main(argv=None) -> int:
               f"stage-1 count, {ray_samples_label(STAGE2_SAMPLER)} auto's stage 2.",
               "", f"Command: `python -m bench.bench_stage2 --runs {args.runs} --seconds {args.seconds:g} "
               f"--views {args.views}`"]
-    (RESULTS / "stage2_table.md").write_text("\n".join(lines) + "\n")
+    write_result(RESULTS / "stage2_table.md", "\n".join(lines) + "\n")
     return 0
 
 

@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.bench_train import RESULTS, WORK, _run, ensure_scene, scored_on
+from bench.paths import write_result
+from srvol.cli_parser import OneLineParser
 
 STUDY = WORK / "study"
 EVAL_VIEWS = ("040", "041")
@@ -193,7 +195,7 @@ def run_variant(var: Variant, budget: float, collect: bool) -> Row:
     ev = ["srvol", "eval", str(run), "--views", ",".join(EVAL_VIEWS), "--no-relit"]
     paper = "paper" in var.train_args
     row = Row(var.study, var.label, var.group, var.scene.key,
-              command=_strip_checkout(" ".join(train) + ("" if paper else " && " + " ".join(ev))))
+              command=" ".join(train) + ("" if paper else " && " + " ".join(ev)))
     try:
         if not (collect and (run / "train_summary.json").is_file()):
             error = _train(train)
@@ -222,26 +224,13 @@ def load_rows(name: str) -> list[Row]:
     path = RESULTS / f"study_{name}.json"
     if not path.is_file():
         raise SystemExit(f"bench_study: {path} not found; run the study first")
-    rows = [Row(**d) for d in json.loads(path.read_text())]
-    for r in rows:
-        r.command = _strip_checkout(r.command)
-    return rows
+    return [Row(**d) for d in json.loads(path.read_text())]
 
 
 def recorded_budget(rows: list[Row]) -> float:
     """The --time-budget the rows were trained with (read back from their commands)."""
     toks = rows[0].command.split()
     return float(toks[toks.index("--time-budget") + 1])
-
-
-def _strip_checkout(command: str) -> str:
-    """A command with the checkout's absolute path dropped from its bench/work/ paths (run from the
-    repository root): when recording a row, and for rows recorded in another checkout."""
-    out = []
-    for tok in command.split(" "):
-        k = tok.find("/bench/work/")
-        out.append(tok[k + 1:] if k > 0 else tok)
-    return " ".join(out)
 
 
 def _train(cmd: list[str]) -> str | None:
@@ -297,7 +286,7 @@ def _fmt(v, spec: str) -> str:
 
 def write_table(name: str, rows: list[Row], budget: float, extra: list[str]) -> None:
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"study_{name}.json").write_text(json.dumps([r.__dict__ for r in rows], indent=1, default=str))
+    write_result(RESULTS / f"study_{name}.json", json.dumps([r.__dict__ for r in rows], indent=1, default=str))
     lines = [f"# {name}: {budget:.0f} s training budget per run, 2-core CPU, views {', '.join(EVAL_VIEWS)}", "",
              "Reproduce: `python -m bench.bench_study --only " + name + f" --budget {budget:g}` "
              "(each row's own commands are listed below).", "",
@@ -316,7 +305,7 @@ def write_table(name: str, rows: list[Row], budget: float, extra: list[str]) -> 
                      f"{_fmt(m.get('chamfer'), '.4f')} | {r.iterations} | {_fmt(spi, '.3f')} | "
                      f"{r.parameters / 1e6:.2f} M |")
     lines += ["", *extra, "", "Commands:", ""] + [f"- {r.label}: `{r.command}`" for r in rows]
-    (RESULTS / f"study_{name}.md").write_text("\n".join(lines) + "\n")
+    write_result(RESULTS / f"study_{name}.md", "\n".join(lines) + "\n")
     print("\n".join(lines), flush=True)
 
 
@@ -379,14 +368,19 @@ def chart_bars(name: str, rows: list[Row], ref: Row | None) -> None:
     fig.savefig(RESULTS / f"study_{name}.png", dpi=110)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--budget", type=float, default=120.0, help="training seconds per run (default 120)")
     ap.add_argument("--only", default="sweep,stability,capacity", help="comma list of studies")
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument("--collect", action="store_true", help="reuse finished runs; rebuild tables and charts")
     mode.add_argument("--from-results", action="store_true",
                       help="no training: rebuild the tables and charts from bench/results/study_*.json")
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
     args = ap.parse_args(argv)
     studies = [s for s in args.only.split(",") if s]
     unknown = set(studies) - {"sweep", "stability", "capacity"}

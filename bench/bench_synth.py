@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.paths import write_result
 from srvol.data import load_scene
 from srvol.metrics import psnr
 from srvol.psf import blur_decimate
@@ -116,16 +117,16 @@ def write_tables(rows: list[SynthRow]) -> None:
     lines += ["", f"Machine: {os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, "
               f"load average at the end {load} (other jobs on the machine inflate the seconds). "
               "Reproduce: `OMP_NUM_THREADS=2 python -m bench.bench_synth`."]
-    (RESULTS / "synth_table.md").write_text("\n".join(lines) + "\n")
+    write_result(RESULTS / "synth_table.md", "\n".join(lines) + "\n")
     # strict JSON has no Infinity: an exact match (infinite PSNR) is written as the string "inf"
     plain = [{k: ("inf" if v == float("inf") else v) for k, v in asdict(r).items()} for r in rows]
-    (RESULTS / "synth_table.json").write_text(json.dumps(plain, indent=1, allow_nan=False) + "\n")
+    write_result(RESULTS / "synth_table.json", json.dumps(plain, indent=1, allow_nan=False) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:
-    import argparse
+    from srvol.cli_parser import OneLineParser
 
-    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
+    OneLineParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_synth_") as tmp:
         for name in SCENES:

@@ -20,6 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.paths import write_result
+from srvol.cli_parser import OneLineParser
+
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results"
 WORK = ROOT / "work"
@@ -89,8 +92,8 @@ def snapshot_curve(run: Path, scene_dir: Path, view: str) -> list[tuple[float, f
     return out
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="bumpy")
     ap.add_argument("--budget", type=float, default=600.0)
     ap.add_argument("--variants", default=",".join(DEFAULT_VARIANTS),
@@ -105,6 +108,11 @@ def main(argv=None) -> int:
                          "views on a CPU)")
     ap.add_argument("--collect", action="store_true",
                     help="do not train: rebuild the table and chart from the runs already in bench/work/runs")
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
     args = ap.parse_args(argv)
     scene = ensure_scene(args.scene)
     from srvol.data import load_scene
@@ -199,7 +207,7 @@ def write_results(rows: list[dict], args) -> None:
     import matplotlib.pyplot as plt
 
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "train_table.json").write_text(json.dumps(rows, indent=1))
+    write_result(RESULTS / "train_table.json", json.dumps(rows, indent=1))
     ref = next((r for r in rows if r["sr"] == "none" and r["preset"] == "auto" and "error" not in r), None)
     scored = next((r["views"] for r in rows if r.get("views")), {})
     lines = [f"# Training: {args.scene}, budget {args.budget:.0f} s per run (2-core CPU)", "",
@@ -244,7 +252,7 @@ def write_results(rows: list[dict], args) -> None:
     lines += ["", "Paper (synthetic average after 2-3 days on a GPU): PSNR 32.44 dB, SSIM 0.917, normal MAE 5.28 deg; "
               "Vol-SR 32.20 / 0.912 / 5.31 deg.", "", "Commands:", ""]
     lines += [f"- `{r['command']}`" for r in rows]
-    (RESULTS / "train_table.md").write_text("\n".join(lines) + "\n")
+    write_result(RESULTS / "train_table.md", "\n".join(lines) + "\n")
     fig, ax = plt.subplots(figsize=(6, 4))
     for r in rows:
         if r["curve"]:

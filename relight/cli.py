@@ -54,7 +54,7 @@ def add_parser(sub) -> None:
     p.add_argument("--builtin", choices=BUILTIN_FIELDS,
                    help="render a built-in scene's exact analytic fields instead of SOURCE (validation aid)")
     p.add_argument("--light-pos", required=True, metavar="X,Y,Z",
-                   help="light position in the scene frame (object in the unit sphere, +z up), e.g. 1.5,0,2; write --light-pos=-1.5,0,2 when X is negative")
+                   help="light position in the scene frame (object in the unit sphere, +z up), e.g. -1.5,0,2")
     p.add_argument("--intensity", metavar="I|R,G,B",
                    help="radiant intensity (W/sr) of the light, one number or r,g,b, in the scene's units "
                         "(default: the run's learned/given intensity; 10 for assets and built-ins)")

@@ -9,9 +9,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from srvol.cli_parser import EXIT_USER_ERROR, OneLineParser
 from srvol.errors import SrvolError
-
-EXIT_USER_ERROR = 2
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -201,18 +200,6 @@ def _run_bench(args) -> int:
 
 
 # ----------------------------------------------------------------------------- entry points
-
-class OneLineParser(argparse.ArgumentParser):
-    """argparse that reports a command-line mistake in one line (no usage block), exit status 2.
-
-    Sub-command parsers inherit the class (argparse's ``add_subparsers`` uses the parent's type).
-    """
-
-    def error(self, message: str):
-        root, *command = self.prog.split()
-        where = f"{' '.join(command)}: " if command else ""
-        self.exit(EXIT_USER_ERROR, f"{root}: error: {where}{message} (see {self.prog} --help)\n")
-
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from srvol.cli import main as srvol
+from srvol.cli_parser import OneLineParser
 
 LIGHTS = ("1.6,-1.2,1.4", "-1.8,0.4,0.9", "0.3,1.9,-0.8")
 
@@ -41,7 +42,7 @@ def run_demo(out: Path, budget: float, eval_views: int) -> int:
     step("eval", str(run), "--views", ",".join(views[:eval_views]))
     step("export", str(run), "--format", "usd,glb", "--out", str(asset), "--force")
     for k, pos in enumerate(LIGHTS):
-        step("relight", str(run), f"--light-pos={pos}", "--view", views[0], "--out", str(relit / f"light{k}.png"),
+        step("relight", str(run), "--light-pos", pos, "--view", views[0], "--out", str(relit / f"light{k}.png"),
              "--force")
     (out / "commands.txt").write_text("\n".join(commands) + "\n")
     step("report", str(run), "--out", str(out / "report.html"), "--include", str(relit),
@@ -50,12 +51,16 @@ def run_demo(out: Path, budget: float, eval_views: int) -> int:
     return 0
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__)
+def build_parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__)
     ap.add_argument("--out", type=Path, default=Path("demo_out"))
     ap.add_argument("--budget", type=float, default=360.0, help="training seconds (both stages; default 360)")
     ap.add_argument("--eval-views", type=int, default=2)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     return run_demo(args.out, args.budget, args.eval_views)
 
 
