@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from srvol.cli_parser import image_size
 from srvol.errors import SrvolError
 from srvol.relight.edits import SPEC_HELP, parse_material
 from srvol.relight.render import RelitImage, render_scene
@@ -31,17 +32,6 @@ class RelightJob:
     light: PointLight
 
 
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = text.lower().split("x")
-        size = int(w), int(h)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 640x480), got {text!r}") from None
-    if min(size) < 1 or max(size) > 16384:
-        raise argparse.ArgumentTypeError(f"resolution {text}: sides must be 1..16384")
-    return size
-
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "relight", help="render a run or an exported asset under a moved point light, with shadows",
@@ -65,7 +55,7 @@ def add_parser(sub) -> None:
     cams.add_argument("--orbit", type=int, metavar="N",
                       help="N lights circling the object about +z (through --light-pos), into one sheet PNG")
     p.add_argument("--scene", type=Path, metavar="DIR", help="scene folder for --view (default: the run's scene)")
-    p.add_argument("--resolution", type=_size, metavar="WxH",
+    p.add_argument("--resolution", type=image_size, metavar="WxH",
                    help="render size (default: the camera's; 640x480 for the default camera)")
     p.add_argument("--material", action="append", default=[], metavar="SPEC", help=f"material edit: {SPEC_HELP}")
     p.add_argument("--shadows", action=argparse.BooleanOptionalAction, default=True,

@@ -9,16 +9,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from srvol.cli_parser import EXIT_USER_ERROR, OneLineParser
+from srvol.cli_parser import EXIT_USER_ERROR, OneLineParser, image_size
 from srvol.errors import SrvolError
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = text.lower().split("x")
-        return int(w), int(h)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 120x90), got {text!r}") from None
 
 
 # ----------------------------------------------------------------------------- synth / inspect
@@ -36,7 +28,7 @@ def _add_synth(sub) -> None:
                                                                   f"default {DEFAULT_SCENE})")
     p.add_argument("--out", type=Path, help="scene folder to write (required unless --list)")
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
-    p.add_argument("--lr", type=_size, default=d.lr, help=f"LR image size WxH (default {d.lr[0]}x{d.lr[1]})")
+    p.add_argument("--lr", type=image_size, default=d.lr, help=f"LR image size WxH (default {d.lr[0]}x{d.lr[1]})")
     p.add_argument("--sr", type=int, default=d.sr, help=f"super-resolution factor HR/LR (default {d.sr})")
     p.add_argument("--views", type=int, default=d.views, help=f"training views (default {d.views})")
     p.add_argument("--test-views", type=int, default=d.test_views, help=f"held-out views (default {d.test_views})")

@@ -39,3 +39,15 @@ class OneLineParser(argparse.ArgumentParser):
         root, *command = self.prog.split()
         where = f"{' '.join(command)}: " if command else ""
         self.exit(EXIT_USER_ERROR, f"{root}: error: {where}{message} (see {self.prog} --help)\n")
+
+
+def image_size(text: str) -> tuple[int, int]:
+    """An argparse type: ``WxH`` -> (W, H), each side 1..16384."""
+    try:
+        w, h = text.lower().split("x")
+        size = int(w), int(h)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 640x480), got {text!r}") from None
+    if min(size) < 1 or max(size) > 16384:
+        raise argparse.ArgumentTypeError(f"size {text}: sides must be 1..16384")
+    return size

@@ -41,7 +41,6 @@ def test_the_argparse_hook_is_still_there():
 
 
 @pytest.mark.parametrize("argv, dest, value", [
-    (["synth", "--lr", "-64x48"], "lr", (-64, 48)),
     (["synth", "--sr", "-4"], "sr", -4),
     (["synth", "--views", "-3"], "views", -3),
     (["synth", "--test-views", "-2"], "test_views", -2),
@@ -60,6 +59,14 @@ def test_the_argparse_hook_is_still_there():
 ])
 def test_srvol_options_take_negative_values(argv, dest, value):
     assert getattr(build_parser().parse_args(argv), dest) == value
+
+
+def test_a_negative_size_is_read_as_a_size_and_refused_as_one(capsys):
+    """``--lr -64x48`` reaches the size parser (not "expected one argument") and fails there."""
+    with pytest.raises(SystemExit) as e:
+        build_parser().parse_args(["synth", "--lr", "-64x48"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and "argument --lr: size -64x48: sides must be 1..16384" in err
 
 
 @pytest.mark.parametrize("argv, dest, value", [

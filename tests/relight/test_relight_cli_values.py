@@ -37,7 +37,7 @@ def test_negative_resolution_is_the_resolution_error(capsys):
         parse("--light-pos", "1,1,2", "--resolution", "-64x48")
     err = capsys.readouterr().err
     assert e.value.code == 2 and err.count("\n") == 1
-    assert "argument --resolution: resolution -64x48: sides must be 1..16384" in err
+    assert "argument --resolution: size -64x48: sides must be 1..16384" in err
 
 
 def test_relight_command_with_a_light_at_negative_x(capsys, tmp_path):
