@@ -40,7 +40,7 @@ from srvol.export.asset import load_asset
 from srvol.export.bake import BakeOptions, bake, tangent_frames
 from srvol.export.blender import BlenderView, run_blender_check
 from srvol.export.cli import _builtin_fields
-from srvol.export.extract import evaluate_sdf, sdf_normals
+from srvol.export.extract import evaluate_sdf
 from srvol.export.pipeline import ExportOptions, export_fields
 from srvol.export.types import Mesh, TextureSet
 from srvol.images import read_exr

@@ -92,7 +92,8 @@ def derive_scene(variant: SceneVariant) -> Path:
     out = STUDY / "scenes" / variant.key
     if (out / "scene.json").is_file():
         return out
-    from srvol.data import AtomicFolder, load_scene, write_scene_folder
+    from srvol.atomic import AtomicFolder
+    from srvol.data import load_scene, write_scene_folder
 
     scene = load_scene(base)
     rng = np.random.default_rng(0)

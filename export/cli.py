@@ -64,24 +64,13 @@ def _formats(text: str) -> tuple[str, ...]:
 
 
 def _builtin_fields(name: str):
-    import torch
-
+    from srvol.field_adapters import material_in_float64
     from srvol.synth import scenes
 
     sdf64, mat64 = {"bumpy": (scenes.bumpy_sdf, scenes.bumpy_material),
                     "glossy": (scenes.glossy_sdf, scenes.glossy_material)}[name]
-
-    def sdf_fn(x: torch.Tensor) -> torch.Tensor:
-        # The closed forms run in the caller's dtype: float32 errs by ~2e-7, far below a 1/256 cell.
-        return sdf64(x)
-
-    def material_fn(x: torch.Tensor):
-        from srvol.types import SurfaceMaterial
-
-        m = mat64(x.double())
-        return SurfaceMaterial(m.albedo.to(x.dtype), m.specular.to(x.dtype), m.alpha.to(x.dtype))
-
-    return sdf_fn, material_fn
+    # The SDF's closed form runs in the caller's dtype: float32 errs by ~2e-7, far below a 1/256 cell.
+    return sdf64, material_in_float64(mat64)
 
 
 BUILTIN_HR_PIXEL_SIZE = 0.005

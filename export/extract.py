@@ -28,6 +28,7 @@ import torch
 
 from srvol.errors import SrvolError
 from srvol.export.types import Mesh
+from srvol.geometry import sdf_normals
 from srvol.types import SdfFn
 
 EMPTY_SDF_MESSAGE = "the SDF has no surface inside the unit sphere"
@@ -88,12 +89,6 @@ def sdf_gradient(sdf_fn: SdfFn, points: np.ndarray, chunk: int = 1 << 16) -> tup
         vals[s:s + chunk] = d.detach().float().numpy()
         grads[s:s + chunk] = g.float().numpy()
     return vals, grads
-
-
-def sdf_normals(sdf_fn: SdfFn, points: np.ndarray) -> np.ndarray:
-    """(N, 3) unit normals +grad d / |grad d| (outward)."""
-    _, g = sdf_gradient(sdf_fn, points)
-    return g / np.linalg.norm(g, axis=1, keepdims=True).clip(1e-12)
 
 
 def _active_blocks(sdf_fn: SdfFn, opts: ExtractOptions) -> tuple[np.ndarray, int, int]:
@@ -281,7 +276,8 @@ def extract_mesh(sdf_fn: SdfFn, opts: ExtractOptions = ExtractOptions()) -> Extr
     faces, dropped = _largest_component(faces, len(pos))
     pos, faces = compact(pos, faces)
     faces, flipped = orient_outward(sdf_fn, pos, faces)
-    normals = sdf_normals(sdf_fn, pos) if opts.normals else None
+    points = torch.from_numpy(np.ascontiguousarray(pos, np.float32))
+    normals = sdf_normals(sdf_fn, points).numpy() if opts.normals else None
     mesh = Mesh(vertices=pos.astype(np.float32), faces=faces,
                 normals=None if normals is None else normals.astype(np.float32))
     return ExtractResult(mesh=mesh, resolution=opts.resolution, cell_size=h, sdf_evaluations=evaluations,

@@ -8,24 +8,23 @@ choices made.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from srvol.data import AtomicFolder
+from srvol.atomic import AtomicFolder, atomic_write_text
 from srvol.errors import SrvolError
 from srvol.export.asset import ASSET_FORMAT
 from srvol.export.bake import BakeOptions, auto_texture_size, bake
-from srvol.export.extract import ExtractOptions, auto_resolution, extract_mesh, sdf_normals
+from srvol.export.extract import ExtractOptions, auto_resolution, extract_mesh
 from srvol.export.simplify import SimplifyOptions, simplify
 from srvol.export.textures import specular_reference, write_textures
 from srvol.export.types import Mesh
 from srvol.export.uv import unwrap
-from srvol.images import atomic_write_text
+from srvol.geometry import sdf_normals
 from srvol.types import MaterialFn, SdfFn
 
 FORMATS = ("usd", "usdc", "usdz", "gltf", "glb", "obj", "blend")
@@ -173,8 +172,9 @@ def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
         report.texture_size = size
         with _Timer(report, "unwrap"):
             uvr = unwrap(simp.mesh, size)
+            vertices = torch.from_numpy(np.ascontiguousarray(uvr.mesh.vertices, np.float32))
             mesh = Mesh(vertices=uvr.mesh.vertices, faces=uvr.mesh.faces, uv=uvr.mesh.uv,
-                        normals=sdf_normals(sdf_fn, uvr.mesh.vertices).astype(np.float32))
+                        normals=sdf_normals(sdf_fn, vertices).numpy())
         report.charts = uvr.charts
         with _Timer(report, "bake"):
             baked = bake(sdf_fn, material_fn, mesh, BakeOptions(texture_size=size, gutter=options.gutter,

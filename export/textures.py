@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from srvol.export.types import TextureSet
-from srvol.images import atomic_path, write_exr, write_png
+from srvol.atomic import atomic_path
+from srvol.images import write_exr, write_png
 
 
 @dataclass(frozen=True)

@@ -88,15 +88,10 @@ def parse_light(pos_text: str, intensity_text: str | None, default: tuple[float,
 
 
 def read_cameras_file(path: Path) -> list[NamedCamera]:
-    """A cameras.json-style file: {"<name>": {"K", "W2C", "img_size"}} -> cameras named by stem."""
-    from srvol.data import _parse_camera, _read_json
+    """A cameras.json-style file (:func:`srvol.data.read_cameras_json`) -> cameras named by the keys' stems."""
+    from srvol.data import read_cameras_json
 
-    if not path.is_file():
-        raise SrvolError(f"{path}: no such camera file")
-    raw = _read_json(path)
-    if not isinstance(raw, dict) or not raw:
-        raise SrvolError(f"{path}: expected a non-empty object of cameras")
-    return [NamedCamera(Path(key).stem, _parse_camera(path, key, raw[key])) for key in sorted(raw)]
+    return [NamedCamera(Path(key).stem, camera) for key, camera in read_cameras_json(path).items()]
 
 
 def view_camera(source: Source, scene_dir: Path | None, view: str) -> Camera:
@@ -185,7 +180,7 @@ def _orbit_sheet(path: Path, images: list[tuple[RelightJob, RelitImage]], title:
 
 def write_outputs(out: Path, images: list[tuple[RelightJob, RelitImage]], orbit: bool, force: bool,
                   title: str) -> None:
-    from srvol.data import AtomicFolder
+    from srvol.atomic import AtomicFolder
     from srvol.images import write_exr, write_png
 
     suffix = out.suffix.lower()

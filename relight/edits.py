@@ -11,8 +11,9 @@ preset, then albedo / albedo-texture, then roughness, then specular / no-specula
 * ``albedo-texture=PNG``  an sRGB PNG (decoded to linear) as diffuse albedo. Mapping: with
   surface UVs (an exported asset) the texture is laid in the asset's UVs (origin bottom-left,
   texel row = (1 - v) * H, as :mod:`srvol.export.types`); without UVs (the neural model) it is
-  projected spherically about the scene origin: ``u = atan2(y, x) / 2pi + 0.5`` (wrapping),
-  ``v = 1 - acos(z / |x|) / pi`` so that the image's top row lands on the north pole (+z).
+  projected spherically about the scene origin by :func:`srvol.geometry.spherical_uv`
+  (``u = atan2(y, x) / 2pi + 0.5``, ``v = 1 - acos(z / |x|) / pi``), so that the image's top row
+  lands on the north pole (+z).
 * ``roughness=x``      perceptual roughness r in [0, 1]; writes GGX alpha = r^2 (floored at ALPHA_MIN).
 * ``specular=x``       F0 (grey specular reflectance at normal incidence) in [0, 1].
 
@@ -36,6 +37,7 @@ import torch
 from torch import Tensor
 
 from srvol.errors import SrvolError
+from srvol.geometry import spherical_uv
 from srvol.types import ALPHA_MIN, SurfaceMaterial
 
 GOLD_F0_RGB = (1.00, 0.71, 0.29)
@@ -130,14 +132,6 @@ class MaterialEdit:
         if self.no_specular:
             specular = torch.zeros((n, 1), dtype=dt, device=dev)
         return SurfaceMaterial(albedo=albedo.contiguous(), specular=specular.contiguous(), alpha=alpha.contiguous())
-
-
-def spherical_uv(points: Tensor) -> Tensor:
-    """(N, 3) -> (N, 2) UVs of the spherical projection about the origin (v = 1 at +z)."""
-    r = points.norm(dim=-1).clamp_min(1e-9)
-    u = torch.atan2(points[:, 1], points[:, 0]) / (2 * math.pi) + 0.5
-    v = 1.0 - torch.acos((points[:, 2] / r).clamp(-1, 1)) / math.pi
-    return torch.stack([u, v], dim=-1)
 
 
 def sample_texture(texture: Tensor, uv: Tensor, wrap_u: bool = False) -> Tensor:

@@ -22,11 +22,11 @@ from torch import Tensor
 
 from srvol.brdf import shade
 from srvol.errors import SrvolError
-from srvol.geometry import barycentric
+from srvol.geometry import MeshRayCaster, ray_sphere, sdf_normals
 from srvol.export.types import Asset
 from srvol.psf import box_offsets
 from srvol.relight.edits import MaterialEdit, sample_texture
-from srvol.types import Camera, MaterialFn, PointLight, Rays, SdfFn, SurfaceMaterial
+from srvol.types import ALPHA_MIN, Camera, MaterialFn, PointLight, Rays, SdfFn, SurfaceMaterial
 
 RAY_CHUNK = 1 << 19
 """Rays per batch in :func:`render_scene`: a whole 640x480 frame in one batch, so that sphere tracing
@@ -166,17 +166,6 @@ class TraceOptions:
     tail_after: int = 48
 
 
-def ray_sphere(origins: Tensor, directions: Tensor, radius: float) -> tuple[Tensor, Tensor]:
-    """Entry (clamped at 0) and exit distances of rays through an origin-centred sphere; entry >= exit on a miss."""
-    b = (origins * directions).sum(-1)
-    c = (origins * origins).sum(-1) - radius * radius
-    disc = b * b - c
-    s = disc.clamp_min(0).sqrt()
-    near = torch.where(disc > 0, (-b - s).clamp_min(0.0), torch.ones_like(b))
-    far = torch.where(disc > 0, -b + s, torch.zeros_like(b))
-    return near, far
-
-
 def sphere_trace(sdf_fn: SdfFn, origins: Tensor, directions: Tensor, t_near: Tensor, t_far: Tensor,
                  opts: TraceOptions) -> tuple[Tensor, Tensor]:
     """March rays from ``t_near`` until the SDF falls below ``opts.eps`` or ``t_far`` is passed.
@@ -268,17 +257,6 @@ def first_crossing(sdf_fn: SdfFn, origins: Tensor, directions: Tensor, t0: Tenso
     return hit, hi_b
 
 
-def sdf_normals(sdf_fn: SdfFn, points: Tensor, chunk: int = RAY_CHUNK) -> Tensor:
-    """(N, 3) unit normals: the normalised autograd gradient of the SDF."""
-    out = []
-    for s in range(0, points.shape[0], chunk):
-        with torch.enable_grad():
-            x = points[s:s + chunk].detach().requires_grad_(True)
-            (g,) = torch.autograd.grad(sdf_fn(x).sum(), x)
-        out.append(g / g.norm(dim=-1, keepdim=True).clamp_min(1e-12))
-    return torch.cat(out) if out else points.new_zeros(0, 3)
-
-
 @dataclass(frozen=True)
 class FieldScene:
     """The neural path: an SDF callable and a material callable (float32 in and out)."""
@@ -289,11 +267,11 @@ class FieldScene:
 
     def intersect(self, rays: Rays) -> SurfaceHits:
         o, d = rays.origins.float(), rays.directions.float()
-        near, far = ray_sphere(o, d, self.options.bound)
+        near, far = ray_sphere(Rays(o, d), self.options.bound)
         hit, t = sphere_trace(self.sdf_fn, o, d, near, far, self.options)
         idx = torch.nonzero(hit).squeeze(-1)
         pts = o[idx] + t[idx, None] * d[idx]
-        return SurfaceHits(index=idx, t=t[idx], points=pts, normals=sdf_normals(self.sdf_fn, pts))
+        return SurfaceHits(index=idx, t=t[idx], points=pts, normals=sdf_normals(self.sdf_fn, pts, RAY_CHUNK))
 
     def material_at(self, hits: SurfaceHits) -> SurfaceMaterial:
         return self.material_at_points(hits.points)
@@ -307,7 +285,7 @@ class FieldScene:
         to_light = light.position.to(origins) - origins
         dist = to_light.norm(dim=-1)
         dirs = to_light / dist[:, None].clamp_min(1e-12)
-        _, exit_t = ray_sphere(origins, dirs, self.options.bound)
+        _, exit_t = ray_sphere(Rays(origins, dirs), self.options.bound)
         far = torch.minimum(dist, exit_t)
         hit, _ = sphere_trace(self.sdf_fn, origins, dirs, torch.zeros_like(far), far, self.options)
         return (~hit).float()
@@ -330,22 +308,19 @@ def render_fields(sdf_fn: SdfFn, material_fn: MaterialFn, camera: Camera, light:
 class AssetScene:
     """An exported asset prepared for ray casting (embree BVH built once).
 
-    vertices (V, 3), faces (F, 3), face_normals (F, 3) geometric unit normals, normals (V, 3)
-    shading normals (the asset's, else area-weighted vertex normals), uv (V, 2) or None;
-    textures as torch tensors (H, W, C) linear. ``shadow_bias`` offsets shadow rays along the
-    geometric normal (scene units). With a tangent-space normal map (TextureSet.normal), shading
-    normals are perturbed in the exporter's tangent frames (``tangents`` (V, 3), ``tangent_signs`` (V,)).
+    caster: the mesh's :class:`~srvol.geometry.MeshRayCaster`; normals (V, 3) shading normals (the
+    asset's, else area-weighted vertex normals), uv (V, 2) or None; textures as torch tensors
+    (H, W, C) linear. ``shadow_bias`` offsets shadow rays along the geometric normal (scene units).
+    With a tangent-space normal map (TextureSet.normal), shading normals are perturbed in the
+    exporter's tangent frames (``tangents`` (V, 3), ``tangent_signs`` (V,)).
     """
 
-    vertices: np.ndarray
-    faces: np.ndarray
-    face_normals: np.ndarray
+    caster: MeshRayCaster
     normals: np.ndarray
     uv: np.ndarray | None
     albedo: Tensor
     specular: Tensor
     alpha: Tensor
-    intersector: object
     shadow_bias: float = 1e-4
     normal_map: Tensor | None = None
     tangents: np.ndarray | None = None
@@ -354,7 +329,6 @@ class AssetScene:
     @staticmethod
     def build(asset: Asset, shadow_bias: float = 1e-4) -> "AssetScene":
         import trimesh
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
 
         m = asset.mesh
         tm = trimesh.Trimesh(vertices=np.asarray(m.vertices, np.float64), faces=np.asarray(m.faces, np.int64),
@@ -367,48 +341,30 @@ class AssetScene:
 
             tangents, signs = tangent_frames(replace(m, normals=normals.astype(np.float32)))
             normal_map = torch.from_numpy(np.ascontiguousarray(tex.normal[..., :3], np.float32))
-        intersector = RayMeshIntersector(tm)
-        intersector.intersects_first(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))  # build the BVH now
-        return AssetScene(vertices=np.asarray(tm.vertices), faces=np.asarray(tm.faces),
-                          face_normals=np.asarray(tm.face_normals, np.float64), normals=normals,
+        return AssetScene(caster=MeshRayCaster.build(tm), normals=normals,
                           uv=None if m.uv is None else np.asarray(m.uv, np.float64),
                           albedo=torch.from_numpy(np.ascontiguousarray(tex.albedo[..., :3], np.float32)),
                           specular=torch.from_numpy(np.ascontiguousarray(tex.specular[..., :1], np.float32)),
                           alpha=torch.from_numpy(np.ascontiguousarray(tex.alpha[..., :1], np.float32)),
-                          intersector=intersector, shadow_bias=shadow_bias, normal_map=normal_map,
-                          tangents=tangents, tangent_signs=signs)
-
-    def _first_hits(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ray indices that hit, their triangles and distances (embree's first hit, exact plane distance)."""
-        tri = np.asarray(self.intersector.intersects_first(o, d))
-        idx = np.nonzero(tri >= 0)[0]
-        tri = tri[idx]
-        fn = self.face_normals[tri]
-        p0 = self.vertices[self.faces[tri, 0]]
-        denom = (d[idx] * fn).sum(-1)
-        t = ((p0 - o[idx]) * fn).sum(-1) / np.where(np.abs(denom) < 1e-12, 1e-12, denom)
-        return idx, tri, t
+                          shadow_bias=shadow_bias, normal_map=normal_map, tangents=tangents, tangent_signs=signs)
 
     def intersect(self, rays: Rays) -> SurfaceHits:
         o = rays.origins.detach().double().numpy()
         d = rays.directions.detach().double().numpy()
-        idx, tri, t = self._first_hits(o, d)
-        pts = o[idx] + t[:, None] * d[idx]
-        f = self.faces[tri]
-        bary = barycentric(pts, self.vertices[f[:, 0]], self.vertices[f[:, 1]], self.vertices[f[:, 2]])
-        n = np.einsum("mk,mkc->mc", bary, self.normals[f])
-        uv = None if self.uv is None else np.einsum("mk,mkc->mc", bary, self.uv[f])
-        if self.normal_map is not None and len(idx):
-            n = self._apply_normal_map(n, bary, f, uv)
+        hits = self.caster.first_hits(o, d)
+        n = self.caster.interpolate(hits, self.normals)
+        uv = None if self.uv is None else self.caster.interpolate(hits, self.uv)
+        if self.normal_map is not None and len(hits.ray):
+            n = self._apply_normal_map(n, hits.bary, self.caster.faces[hits.face], uv)
         # shading normals on the side of the geometric face the ray sees
-        fn = self.face_normals[tri]
-        front = -np.sign((fn * d[idx]).sum(-1, keepdims=True))
+        fn = self.caster.face_normals[hits.face]
+        front = -np.sign((fn * d[hits.ray]).sum(-1, keepdims=True))
         front[front == 0] = 1
         n = np.where(((n * fn).sum(-1, keepdims=True) * front) < 0, -n, n)
         n /= np.linalg.norm(n, axis=-1, keepdims=True).clip(1e-12)
         uv = None if uv is None else torch.from_numpy(uv).float()
-        return SurfaceHits(index=torch.from_numpy(idx), t=torch.from_numpy(t).float(),
-                           points=torch.from_numpy(pts).float(), normals=torch.from_numpy(n).float(), uv=uv)
+        return SurfaceHits(index=torch.from_numpy(hits.ray), t=torch.from_numpy(hits.t).float(),
+                           points=torch.from_numpy(hits.points).float(), normals=torch.from_numpy(n).float(), uv=uv)
 
     def _apply_normal_map(self, n: np.ndarray, bary: np.ndarray, f: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Perturb interpolated normals by the tangent-space normal map, in the frame the exporter
@@ -427,7 +383,7 @@ class AssetScene:
             raise SrvolError("the asset's mesh has no UVs: its textures cannot be read")
         return SurfaceMaterial(albedo=sample_texture(self.albedo, hits.uv),
                                specular=sample_texture(self.specular, hits.uv),
-                               alpha=sample_texture(self.alpha, hits.uv).clamp_min(1e-3))
+                               alpha=sample_texture(self.alpha, hits.uv).clamp_min(ALPHA_MIN))
 
     def light_visibility(self, points: Tensor, normals: Tensor, light: PointLight) -> Tensor:
         p = points.detach().double().numpy()
@@ -439,7 +395,7 @@ class AssetScene:
         # offset off the surface on the light's side (shading normals may face away near the terminator)
         side = np.where((n * dirs).sum(-1, keepdims=True) >= 0, 1.0, -1.0)
         origins = p + self.shadow_bias * side * n + self.shadow_bias * dirs
-        idx, _, t = self._first_hits(origins, dirs)
+        idx, _, t = self.caster.first_faces(origins, dirs)
         vis = np.ones(len(p), np.float32)
         blocked = (t > 0) & (t < dist[idx] - 2 * self.shadow_bias)
         vis[idx[blocked]] = 0.0
@@ -449,8 +405,8 @@ class AssetScene:
         """Inside when most of six axis rays first meet a back face (robust to open parts such as a ground quad)."""
         p = np.repeat(point.detach().double().numpy().reshape(1, 3), 6, axis=0)
         d = np.concatenate([np.eye(3), -np.eye(3)])
-        idx, tri, _ = self._first_hits(p, d)
-        back = (self.face_normals[tri] * d[idx]).sum(-1) > 0
+        idx, tri, _ = self.caster.first_faces(p, d)
+        back = (self.caster.face_normals[tri] * d[idx]).sum(-1) > 0
         return int(back.sum()) >= 4
 
 

@@ -1,51 +1,36 @@
 """What ``relight`` renders: a trained run, an exported asset, or an exact built-in scene.
 
 A :class:`Source` bundles the :class:`~srvol.relight.render.RelightScene` with what the command
-line needs around it: the default light intensity and the scene folder whose cameras
-``--view NAME`` refers to.
+line needs around it: the intensity of the light the source was seen under (``--intensity``
+replaces it) and the scene folder whose cameras ``--view NAME`` refers to.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import torch
-from torch import Tensor
 
+from srvol.camera_rig import RIG_LIGHT_INTENSITY, rig_camera
 from srvol.errors import SrvolError
+from srvol.field_adapters import material_in_float64, sdf_in_float64
 from srvol.relight.render import AssetScene, FieldScene, RelightScene, TraceOptions
-from srvol.types import Camera, SurfaceMaterial
-
-DEFAULT_INTENSITY = 10.0
-"""Radiant intensity used when the source does not know its light (the built-in scenes' value)."""
-CAMERA_DISTANCE = 2.6
-"""Distance of the default camera from the origin (the built-in scenes' cameras)."""
+from srvol.types import Camera
 
 
 @dataclass(frozen=True)
 class Source:
     """kind: "run" | "asset" | "builtin"; label: for sheets and messages;
-    intensity: default RGB radiant intensity; scene_dir: the scene for ``--view`` (None if unknown)."""
+    intensity: RGB radiant intensity of the light the source was seen under (a run: its flash, given or
+    learned; a built-in scene or an asset: the rig's flash, RIG_LIGHT_INTENSITY), what the CLI's light gets
+    unless ``--intensity`` says otherwise; scene_dir: the scene for ``--view`` (None if unknown)."""
 
     kind: str
     label: str
     scene: RelightScene
     intensity: tuple[float, float, float]
     scene_dir: Path | None
-
-
-def _float32(fn: Callable[[Tensor], Tensor]) -> Callable[[Tensor], Tensor]:
-    """Evaluate a float64 analytic SDF on float32 points, returning float32."""
-    return lambda x: fn(x.double()).float()
-
-
-def _material32(fn: Callable[[Tensor], SurfaceMaterial]) -> Callable[[Tensor], SurfaceMaterial]:
-    def material(x: Tensor) -> SurfaceMaterial:
-        m = fn(x.double())
-        return SurfaceMaterial(albedo=m.albedo.float(), specular=m.specular.float(), alpha=m.alpha.float())
-    return material
 
 
 BUILTIN_FIELDS = ("bumpy", "glossy")
@@ -56,10 +41,10 @@ def builtin_scene(name: str) -> FieldScene:
     from srvol.synth import scenes
 
     if name == "bumpy":
-        return FieldScene(_float32(scenes.bumpy_sdf), _material32(scenes.bumpy_material),
+        return FieldScene(sdf_in_float64(scenes.bumpy_sdf), material_in_float64(scenes.bumpy_material),
                           TraceOptions(step_scale=1 / 1.6))
     if name == "glossy":
-        return FieldScene(_float32(scenes.glossy_sdf), _material32(scenes.glossy_material),
+        return FieldScene(sdf_in_float64(scenes.glossy_sdf), material_in_float64(scenes.glossy_material),
                           TraceOptions(step_scale=0.95))
     raise SrvolError(f"--builtin {name}: no exact SDF for this scene (choose from {', '.join(BUILTIN_FIELDS)})")
 
@@ -75,7 +60,7 @@ def load_source(path: Path | None, builtin: str | None) -> Source:
     if builtin is not None:
         if path is not None:
             raise SrvolError("give either SOURCE or --builtin NAME, not both")
-        return Source("builtin", f"builtin:{builtin}", builtin_scene(builtin), (DEFAULT_INTENSITY,) * 3, None)
+        return Source("builtin", f"builtin:{builtin}", builtin_scene(builtin), (RIG_LIGHT_INTENSITY,) * 3, None)
     if path is None:
         raise SrvolError("relight needs SOURCE (a training run or an exported asset folder) or --builtin NAME")
     path = Path(path)
@@ -83,7 +68,7 @@ def load_source(path: Path | None, builtin: str | None) -> Source:
         raise SrvolError(f"{path}: no such folder (SOURCE must be a training run or an exported asset folder)")
     if is_asset_dir(path):
         return Source("asset", f"asset:{path.name}", AssetScene.build(load_asset(path)),
-                      (DEFAULT_INTENSITY,) * 3, None)
+                      (RIG_LIGHT_INTENSITY,) * 3, None)
     if is_run_dir(path):
         return load_run_source(path)
     raise SrvolError(f"{path}: neither a training run (no config.json) nor an exported asset (no asset.json)")
@@ -103,12 +88,11 @@ def load_run_source(run_dir: Path) -> Source:
 
 
 def default_camera(width: int, height: int, azimuth_deg: float = -60.0, elevation_deg: float = 20.0) -> Camera:
-    """A camera at the built-in scenes' distance looking at the origin, +z up, framing the unit sphere's object."""
+    """A camera of the built-in scenes' rig (:mod:`srvol.camera_rig`) at the given azimuth and elevation,
+    looking at the origin, +z up, framing the unit sphere's object."""
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    eye = CAMERA_DISTANCE * torch.tensor([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-    f = 0.95 * (height / 2) / math.tan(math.asin(0.82 / CAMERA_DISTANCE))
-    K = torch.tensor([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], dtype=torch.float64)
-    return Camera.look_at(eye.tolist(), [0, 0, 0], [0, 0, 1], K, width, height)
+    direction = torch.tensor([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    return rig_camera(direction, width, height)
 
 
 def resize_camera(camera: Camera, width: int, height: int) -> Camera:

@@ -90,7 +90,7 @@ def load_weights(path: Path):
 
 
 def _atomic_torch_save(obj, path: Path) -> None:
-    from srvol.images import atomic_path
+    from srvol.atomic import atomic_path
 
     tmp = atomic_path(path)
     try:
@@ -102,7 +102,7 @@ def _atomic_torch_save(obj, path: Path) -> None:
 
 def save_checkpoint(ckpt_dir: Path, fields, optimizers, state: TrainState, gen_state: torch.Tensor) -> None:
     """Atomically write fields, optimiser states and the RNG state, then the train state as JSON."""
-    from srvol.images import atomic_write_text
+    from srvol.atomic import atomic_write_text
 
     ckpt_dir.mkdir(parents=True, exist_ok=True)
     name = f"weights_{state.step:08d}.pt"

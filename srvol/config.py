@@ -347,7 +347,7 @@ CONFIG_NAME = "config.json"
 
 def write_run_config(run_dir: Path, config: RunConfig) -> None:
     """Atomically write RUN/config.json."""
-    from srvol.images import atomic_write_text
+    from srvol.atomic import atomic_write_text
 
     data = {"version": CONFIG_VERSION, "train": config.train.to_json(), "scene": config.scene.to_json()}
     atomic_write_text(Path(run_dir) / CONFIG_NAME, json.dumps(data, indent=1))

@@ -18,8 +18,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -28,7 +26,8 @@ import numpy as np
 import torch
 
 from srvol.errors import SceneError, SrvolError
-from srvol.images import atomic_write_text, read_exr, read_image, write_exr, write_png
+from srvol.atomic import atomic_write_text
+from srvol.images import read_exr, read_image, write_exr, write_png
 from srvol.psf import DEFAULT_SIGMA_LR_PX, GaussianPSF
 from srvol.types import Camera, PointLight
 
@@ -103,10 +102,7 @@ class GroundTruth:
 
     def hr_cameras(self) -> dict[str, Camera]:
         path = self.root / "hr_cameras.json"
-        if not path.is_file():
-            return {}
-        raw = _read_json(path)
-        return {stem: _parse_camera(path, stem, entry) for stem, entry in raw.items()}
+        return read_cameras_json(path) if path.is_file() else {}
 
     def image(self, kind: str, stem: str) -> np.ndarray | None:
         """kind: "hr", "normal", "albedo" or "relit"."""
@@ -239,6 +235,23 @@ def _parse_camera(path: Path, key: str, entry) -> Camera:
     return Camera(K=torch.from_numpy(K), W2C=torch.from_numpy(W2C), width=W, height=H)
 
 
+def read_cameras_json(path: str | os.PathLike) -> dict[str, Camera]:
+    """The cameras of a cameras.json-style file (IDR/IRON cam_dict), keyed as in the file, in key order.
+
+    ``{"<key>": {"K": [16 or 9 floats], "W2C": [16 floats], "img_size": [W, H]}, ...}``: a scene's
+    cameras.json (keys: image file names), gt/hr_cameras.json (keys: view stems), or a camera file
+    given to ``srvol relight --camera``. Raises :class:`SceneError` naming the file and the problem:
+    missing file, malformed JSON, not a non-empty object, or a malformed camera.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"{path}: no such camera file")
+    raw = _read_json(path)
+    if not isinstance(raw, dict) or not raw:
+        raise SceneError(f"{path}: expected a non-empty object of cameras")
+    return {key: _parse_camera(path, key, raw[key]) for key in sorted(raw)}
+
+
 def _parse_info(path: Path) -> SceneInfo:
     if not path.is_file():
         return SceneInfo()
@@ -293,16 +306,13 @@ def load_scene(root: str | os.PathLike, load_images: bool = True) -> Scene:
     if not cam_path.is_file():
         raise SceneError(f"{root}: no cameras.json (or cam_dict_norm.json)")
     info = _parse_info(root / "scene.json")
-    raw = _read_json(cam_path)
-    if not isinstance(raw, dict) or not raw:
-        raise SceneError(f"{cam_path}: expected a non-empty object of cameras")
+    cameras = read_cameras_json(cam_path)
     img_dir, mask_dir = root / "image", root / "mask"
     if not img_dir.is_dir():
         raise SceneError(f"{img_dir}: missing image folder")
     has_masks = mask_dir.is_dir()
     views: dict[str, View] = {}
-    for fname in sorted(raw):
-        cam = _parse_camera(cam_path, fname, raw[fname])
+    for fname, cam in cameras.items():
         stem = Path(fname).stem
         img_path = img_dir / fname
         if not img_path.is_file():
@@ -380,36 +390,3 @@ def write_scene_folder(out: Path, views: Sequence[View], info: SceneInfo) -> Non
             write_png(out / "mask" / f"{v.name}.png", v.mask.astype(np.float32), srgb=False)
     atomic_write_text(out / "cameras.json", json.dumps(cams, indent=1))
     atomic_write_text(out / "scene.json", json.dumps(info.to_json(), indent=1))
-
-
-class AtomicFolder:
-    """Build a folder under a temporary name and rename it into place on success.
-
-    ``with AtomicFolder(dest, force) as tmp: ...`` -- on an exception the
-    temporary folder is removed and ``dest`` is untouched.
-    """
-
-    def __init__(self, dest: str | os.PathLike, force: bool = False):
-        self.dest = Path(dest)
-        self.force = force
-        if self.dest.exists() and not force and (not self.dest.is_dir() or any(self.dest.iterdir())):
-            raise SrvolError(f"{self.dest}: already exists (use --force to replace it)")
-
-    def __enter__(self) -> Path:
-        self.dest.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.dest.name}.", dir=self.dest.parent))
-        return self.tmp
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is not None:
-            shutil.rmtree(self.tmp, ignore_errors=True)
-            return False
-        if self.dest.exists():
-            old = self.dest.with_name(f".{self.dest.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(self.dest, old)
-            os.replace(self.tmp, self.dest)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(self.tmp, self.dest)
-        return False

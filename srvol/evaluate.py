@@ -152,6 +152,6 @@ def chamfer_to_gt(fields, mesh_path: Path, resolution: int = 128, n_points: int 
 
 
 def write_metrics(path: Path, summary: dict) -> None:
-    from srvol.images import atomic_write_text
+    from srvol.atomic import atomic_write_text
 
     atomic_write_text(path, json.dumps(summary, indent=1))

@@ -1,16 +1,16 @@
 """Image files: float EXR (linear) and 8/16-bit PNG (sRGB or linear, declared by the caller).
 
 Arrays are (H, W, C) float32, linear unless a function says otherwise. Writes
-are atomic: a file is written beside its target and renamed into place.
+are atomic (:mod:`srvol.atomic`): a file is written beside its target and renamed into place.
 """
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from srvol.atomic import atomic_path
 from srvol.errors import SrvolError
 
 
@@ -22,15 +22,6 @@ def srgb_to_linear(x: np.ndarray) -> np.ndarray:
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
-
-
-def atomic_path(path: Path):
-    """A temporary path in ``path``'s folder; rename it onto ``path`` when written."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    return Path(tmp)
 
 
 def write_exr(path: str | os.PathLike, image: np.ndarray) -> None:
@@ -200,12 +191,3 @@ def read_image(path: str | os.PathLike, srgb: bool) -> np.ndarray:
     if p.suffix.lower() == ".png":
         return read_png(p, srgb)
     raise SrvolError(f"{path}: unsupported image type (use .exr or .png)")
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    tmp = atomic_path(Path(path))
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)

@@ -21,6 +21,7 @@ from torch import Tensor
 
 from srvol.brdf import shade
 from srvol.fields import SceneFields
+from srvol.geometry import ray_sphere
 from srvol.types import PointLight, Rays, RenderResult
 
 
@@ -51,17 +52,6 @@ class VolumeRender:
 
     result: RenderResult
     sdf_gradients: Tensor
-
-
-def ray_sphere(rays: Rays, radius: float) -> tuple[Tensor, Tensor]:
-    """Entry and exit distances through the origin-centred sphere; on a miss near = 1 > far = 0."""
-    b = (rays.origins * rays.directions).sum(-1)
-    c = (rays.origins * rays.origins).sum(-1) - radius * radius
-    disc = b * b - c
-    s = disc.clamp_min(0).sqrt()
-    near = torch.where(disc > 0, (-b - s).clamp_min(0.0), torch.ones_like(b))
-    far = torch.where(disc > 0, -b + s, torch.zeros_like(b))
-    return near, far
 
 
 def laplace_density(sdf: Tensor, beta: Tensor) -> Tensor:

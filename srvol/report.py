@@ -11,7 +11,7 @@ import html
 import json
 from pathlib import Path
 
-from srvol.images import atomic_write_text
+from srvol.atomic import atomic_write_text
 
 BENCH_RESULTS = Path(__file__).resolve().parent.parent / "bench" / "results"
 

@@ -154,7 +154,7 @@ def run_train(args) -> int:
         # The budget bounds the whole command: setup so far and the final save come out of it.
         cfg = replace(cfg, time_budget=max(1.0, cfg.time_budget - (time.time() - t0) - 3.0))
     summary = train(scene, cfg, run, resume=args.resume, progress=not args.quiet)
-    from srvol.images import atomic_write_text
+    from srvol.atomic import atomic_write_text
 
     atomic_write_text(run / "train_summary.json", json.dumps(
         {"iterations": summary.iterations, "train_seconds": round(summary.train_seconds, 2),

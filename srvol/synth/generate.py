@@ -17,17 +17,16 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from srvol.data import AtomicFolder, SceneInfo, View, camera_to_json, write_scene_folder
+from srvol.atomic import AtomicFolder, atomic_write_text
+from srvol.camera_rig import CAMERA_DISTANCE, RIG_LIGHT_INTENSITY, rig_camera
+from srvol.data import SceneInfo, View, camera_to_json, write_scene_folder
 from srvol.errors import SrvolError
-from srvol.images import atomic_write_text, write_exr
+from srvol.images import write_exr
 from srvol.psf import DEFAULT_SIGMA_LR_PX, blur_decimate
 from srvol.synth.render import render
 from srvol.synth.scenes import get_scene
 from srvol.synth.surfaces import MeshSurface, Surface
 from srvol.types import Camera, PointLight
-
-CAMERA_DISTANCE = 2.6
-LIGHT_INTENSITY = 10.0
 
 
 @dataclass(frozen=True)
@@ -71,23 +70,24 @@ def fibonacci_directions(n: int, offset: float) -> np.ndarray:
 
 
 def make_cameras(opts: SynthOptions, n: int, offset: float) -> list[Camera]:
+    """``n`` LR cameras of the rig (:mod:`srvol.camera_rig`) spread over the sphere, +z up."""
     W, H = opts.lr
-    f = 0.95 * (H / 2) / math.tan(math.asin(0.82 / CAMERA_DISTANCE))
-    K = torch.tensor([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]], dtype=torch.float64)
     cams = []
     for d in fibonacci_directions(n, offset):
         d = 0.97 * d + 0.03 * np.array([0, 0, 1.0])  # keep off the exact poles
         d /= np.linalg.norm(d)
-        cams.append(Camera.look_at(CAMERA_DISTANCE * d, [0, 0, 0], [0, 0, 1], K, W, H))
+        cams.append(rig_camera(d, W, H))
     return cams
 
 
-def moved_lights(camera: Camera, count: int, rng: np.random.Generator, first: int = 0) -> list[PointLight]:
-    """Lights away from the camera: rotated about the vertical axis by 40-80 deg, raised or lowered.
+def moved_lights(flash: PointLight, count: int, rng: np.random.Generator, first: int = 0) -> list[PointLight]:
+    """Lights away from a view's ``flash`` (its co-located light): the flash's position rotated about
+    the vertical axis by 40-80 deg, raised or lowered, moved to distance 2.2 from the origin, and its
+    intensity scaled by (2.2 / CAMERA_DISTANCE)^2 so that the object receives about the same irradiance.
 
     Pattern k alternates the side (k even: left, odd: right) and lifts every third light above.
     """
-    c = camera.center.numpy()
+    c = flash.position.numpy()
     out = []
     for k in range(first, first + count):
         ang = math.radians((40 + 40 * rng.random()) * (1 if k % 2 == 0 else -1))
@@ -96,7 +96,7 @@ def moved_lights(camera: Camera, count: int, rng: np.random.Generator, first: in
         p[2] += (0.8 if k % 3 == 2 else -0.4) * (1 + 0.2 * rng.random())
         p = p / np.linalg.norm(p) * 2.2
         scale = (2.2 / CAMERA_DISTANCE) ** 2
-        out.append(PointLight.make(p.tolist(), [LIGHT_INTENSITY * scale] * 3))
+        out.append(PointLight.make(p.tolist(), (flash.intensity * scale).tolist()))
     return out
 
 
@@ -140,7 +140,8 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
     test_cams = make_cameras(opts, opts.test_views, offset=0.37)
     names_train = [f"{i:03d}" for i in range(opts.views)]
     names_test = [f"{opts.views + i:03d}" for i in range(opts.test_views)]
-    info = SceneInfo(color_space="linear", light_intensity=(LIGHT_INTENSITY,) * 3, psf_sigma_lr_px=opts.psf_sigma,
+    intensity = (RIG_LIGHT_INTENSITY,) * 3  # the flash of every view; moved lights derive theirs from it
+    info = SceneInfo(color_space="linear", light_intensity=intensity, psf_sigma_lr_px=opts.psf_sigma,
                      sr_factor=opts.sr, train=tuple(names_train), test=tuple(names_test))
     t0 = time.time()
     with folder as tmp:
@@ -150,7 +151,7 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
         bar = tqdm(jobs, desc=f"synth {name}", unit="view", disable=not progress)
         for stem, cam in bar:
             hr_cam = cam.scaled(opts.sr)
-            light = PointLight.at_camera(cam, [LIGHT_INTENSITY] * 3)
+            light = PointLight.at_camera(cam, intensity)
             is_test = stem in names_test
             # Training views are blurred by the PSF (sigma_hr = 1.5 px at x4), so one ray per
             # HR pixel suffices there; test views are GT and get ss x ss sub-pixel rays.
@@ -165,7 +166,8 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
                 write_exr(tmp / "gt" / "albedo" / f"{stem}.exr", r.albedo)
         relit = []
         for i, (stem, cam) in enumerate(list(zip(names_test, test_cams))[: opts.relit_views]):
-            for k, light in enumerate(moved_lights(cam, opts.lights_per_view, rng, first=i)):
+            flash = PointLight.at_camera(cam, intensity)
+            for k, light in enumerate(moved_lights(flash, opts.lights_per_view, rng, first=i)):
                 rname = f"{stem}_l{i + k}"
                 r = render(surface, cam.scaled(opts.sr), light, ss=opts.ss, shadows=True, maps=False)
                 write_exr(tmp / "gt" / "relit" / f"{rname}.exr", r.rgb)

@@ -6,7 +6,6 @@ and a GT mesh.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -18,6 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from srvol.errors import SrvolError
+from srvol.geometry import spherical_uv
 from srvol.images import srgb_to_linear
 from srvol.synth.surfaces import AnalyticSurface, MeshSurface, Surface
 from srvol.types import SurfaceMaterial
@@ -42,13 +42,6 @@ def _sample(tex: Tensor, u: Tensor, v: Tensor) -> Tensor:
     grid = torch.stack([u, v], -1)[None, None]
     return F.grid_sample(tex, grid.to(tex), mode="bilinear", padding_mode="border",
                          align_corners=False)[0, :, 0].T
-
-
-def _spherical_uv(x: Tensor) -> tuple[Tensor, Tensor]:
-    r = x.norm(dim=-1).clamp_min(1e-9)
-    u = (torch.atan2(x[:, 1], x[:, 0]) / (2 * math.pi)) + 0.5
-    v = torch.acos((x[:, 2] / r).clamp(-1, 1)) / math.pi
-    return u, v
 
 
 def _triplanar(tex: Tensor, x: Tensor, scale: float) -> Tensor:
@@ -82,8 +75,8 @@ def bumpy_sdf(x: Tensor) -> Tensor:
 
 def bumpy_material(x: Tensor) -> SurfaceMaterial:
     tex = _texture("astronaut")
-    u, v = _spherical_uv(x)
-    alb = 0.05 + 0.8 * _sample(tex, 2 * u, v)
+    uv = spherical_uv(x)  # the texture's row 0 (grid_sample's -1) at the north pole: v runs down from +z
+    alb = 0.05 + 0.8 * _sample(tex, 2 * uv[:, 0], 1 - uv[:, 1])
     n = x.shape[0]
     return SurfaceMaterial(albedo=alb, specular=torch.full((n, 1), 0.04, dtype=x.dtype),
                            alpha=torch.full((n, 1), 0.25, dtype=x.dtype))

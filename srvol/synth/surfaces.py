@@ -13,8 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from srvol.geometry import barycentric
-from srvol.render import ray_sphere
+from srvol.geometry import MeshRayCaster, ray_sphere, sdf_normals
 from srvol.types import MaterialFn, Rays, SdfFn
 
 
@@ -26,14 +25,6 @@ class Hit:
     t: Tensor
     points: Tensor
     normals: Tensor
-
-
-def sdf_normals(sdf: SdfFn, x: Tensor) -> Tensor:
-    with torch.enable_grad():
-        x = x.detach().requires_grad_(True)
-        d = sdf(x)
-        (g,) = torch.autograd.grad(d.sum(), x)
-    return g / g.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 @dataclass
@@ -103,12 +94,8 @@ class MeshSurface:
     material: MaterialFn
 
     def __post_init__(self):
-        import trimesh
-
-        self._intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(self.mesh)
+        self._caster = MeshRayCaster.build(self.mesh)
         self._vn = np.asarray(self.mesh.vertex_normals, dtype=np.float64)
-        self._faces = np.asarray(self.mesh.faces)
-        self._verts = np.asarray(self.mesh.vertices, dtype=np.float64)
 
     def sdf(self, x: Tensor) -> Tensor:
         """Signed distance (negative inside) -- slow; used only for tests and the mesh GT."""
@@ -121,24 +108,18 @@ class MeshSurface:
         o = rays.origins.detach().cpu().double().numpy()
         d = rays.directions.detach().cpu().double().numpy()
         n = o.shape[0]
-        tri, ray_idx, locs = self._intersector.intersects_id(o, d, multiple_hits=False, return_locations=True)
+        hits = self._caster.first_hits(o, d)
         t = np.full(n, np.inf)
         pts = o.copy()
         normals = np.zeros((n, 3))
-        if len(ray_idx):
-            tt = ((locs - o[ray_idx]) * d[ray_idx]).sum(-1)
-            t[ray_idx] = tt
-            pts[ray_idx] = locs
-            f = self._faces[tri]
-            a, b, c = self._verts[f[:, 0]], self._verts[f[:, 1]], self._verts[f[:, 2]]
-            bary = barycentric(locs, a, b, c)
-            nn = (bary[:, :1] * self._vn[f[:, 0]] + bary[:, 1:2] * self._vn[f[:, 1]]
-                  + bary[:, 2:] * self._vn[f[:, 2]])
-            # Keep shading normals facing the viewer's side of the geometric face.
-            fn = np.cross(b - a, c - a)
-            flip = (nn * fn).sum(-1) < 0
+        if len(hits.ray):
+            t[hits.ray] = hits.t
+            pts[hits.ray] = hits.points
+            nn = self._caster.interpolate(hits, self._vn)
+            # Keep shading normals on the side of the geometric face normal (outward on a closed mesh).
+            flip = (nn * self._caster.face_normals[hits.face]).sum(-1) < 0
             nn[flip] *= -1
-            normals[ray_idx] = nn / np.linalg.norm(nn, axis=-1, keepdims=True).clip(1e-12)
+            normals[hits.ray] = nn / np.linalg.norm(nn, axis=-1, keepdims=True).clip(1e-12)
         hit = np.isfinite(t)
         if t_max is not None:
             tm = t_max.detach().cpu().double().numpy()

@@ -15,7 +15,7 @@ import torch
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from srvol.data import camera_to_json, load_scene
+from srvol.data import camera_to_json, load_scene, read_cameras_json
 from srvol.errors import SceneError, SrvolError
 from srvol.images import linear_to_srgb, write_png
 
@@ -41,6 +41,25 @@ def test_round_trip_keeps_cameras_images_masks_and_info(tiny_scene):
     hr = scene.hr_camera("002")
     assert (hr.width, hr.height) == (2 * TINY_W, 2 * TINY_H)
     assert hr.K[0, 0].item() == 20.0
+
+
+def test_read_cameras_json_is_the_scene_readers_camera_reader(tiny_scene, tmp_path):
+    cams = read_cameras_json(tiny_scene / "cameras.json")
+    assert list(cams) == ["000.exr", "001.exr", "002.exr"]  # keyed as in the file, in key order
+    scene = load_scene(tiny_scene, load_images=False)
+    for key, cam in cams.items():
+        torch.testing.assert_close(cam.W2C, scene.views[Path(key).stem].camera.W2C)
+    # any cameras.json-style file: keys need not be image names; 3x3 K is accepted too
+    entry = camera_to_json(tiny_camera(1))
+    entry["K"] = np.asarray(entry["K"]).reshape(4, 4)[:3, :3].reshape(-1).tolist()
+    (tmp_path / "b.json").write_text(json.dumps({"zz": camera_to_json(tiny_camera(0)), "aa": entry}))
+    cams = read_cameras_json(tmp_path / "b.json")
+    assert list(cams) == ["aa", "zz"] and cams["aa"].K.shape == (3, 3)
+    with pytest.raises(SceneError, match="no such camera file"):
+        read_cameras_json(tmp_path / "none.json")
+    (tmp_path / "empty.json").write_text("{}")
+    with pytest.raises(SceneError, match="empty.json: expected a non-empty object of cameras"):
+        read_cameras_json(tmp_path / "empty.json")
 
 
 def test_defaults_without_scene_json(tiny_scene):

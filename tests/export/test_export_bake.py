@@ -7,10 +7,11 @@ import torch
 
 from export_testfields import RADIUS, colour_material, sphere_sdf
 from srvol.export.bake import BakeOptions, auto_texture_size, bake, dilate, rasterize_uv
-from srvol.export.extract import ExtractOptions, extract_mesh, sdf_normals
+from srvol.export.extract import ExtractOptions, extract_mesh
 from srvol.export.simplify import decimate
 from srvol.export.types import Mesh
 from srvol.export.uv import unwrap
+from srvol.geometry import sdf_normals
 
 SIZE = 128
 
@@ -18,7 +19,8 @@ SIZE = 128
 def _baked_sphere():
     full = extract_mesh(sphere_sdf, ExtractOptions(resolution=48)).mesh
     uvm = unwrap(decimate(full, 800), SIZE).mesh
-    mesh = Mesh(uvm.vertices, uvm.faces, uvm.uv, sdf_normals(sphere_sdf, uvm.vertices).astype(np.float32))
+    normals = sdf_normals(sphere_sdf, torch.from_numpy(np.ascontiguousarray(uvm.vertices, np.float32))).numpy()
+    mesh = Mesh(uvm.vertices, uvm.faces, uvm.uv, normals)
     return mesh, bake(sphere_sdf, colour_material, mesh, BakeOptions(texture_size=SIZE, gutter=6, normal_map=True))
 
 

@@ -8,8 +8,9 @@ import pytest
 import torch
 
 from srvol.errors import SrvolError
+from srvol.geometry import spherical_uv
 from srvol.images import write_png
-from srvol.relight.edits import GOLD, MaterialEdit, parse_material, spherical_uv
+from srvol.relight.edits import GOLD, MaterialEdit, parse_material
 from srvol.relight.render import FieldScene, render_scene
 from srvol.types import SurfaceMaterial
 

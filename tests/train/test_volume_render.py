@@ -4,8 +4,8 @@ import math
 import torch
 
 from srvol.fields import FieldConfig, SceneFields
-from srvol.render import (SamplerConfig, laplace_density, ray_sphere, render_weight_from_density,
-                          sample_from_weights, volume_render)
+from srvol.render import (SamplerConfig, laplace_density, render_weight_from_density, sample_from_weights,
+                          volume_render)
 from srvol.types import PointLight, Rays
 
 
@@ -31,13 +31,6 @@ def test_weights_sum_at_most_one_for_random_densities():
     deltas = torch.rand(200, 64, generator=g) * 0.1
     w = render_weight_from_density(sigma, deltas)
     assert (w >= 0).all() and (w.sum(1) <= 1 + 1e-6).all()
-
-
-def test_ray_sphere_entry_exit():
-    rays = Rays(torch.tensor([[0.0, 0.0, -3.0], [0.0, 2.0, -3.0]]), torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]))
-    near, far = ray_sphere(rays, 1.0)
-    assert torch.allclose(near[0], torch.tensor(2.0)) and torch.allclose(far[0], torch.tensor(4.0))
-    assert near[1] > far[1]  # miss
 
 
 def test_importance_samples_follow_the_weights():
