@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,46 +17,16 @@ import torch
 from tqdm import tqdm
 
 from srvol.data import AtomicFolder, SceneInfo, View, camera_to_json, write_scene_folder
-from srvol.errors import SrvolError
 from srvol.images import atomic_write_text, write_exr
 from srvol.psf import blur_decimate
 from srvol.synth.render import render
+from srvol.synth.options import SynthOptions
 from srvol.synth.scenes import get_scene
 from srvol.synth.surfaces import MeshSurface, Surface
 from srvol.types import Camera, PointLight
 
 CAMERA_DISTANCE = 2.6
 LIGHT_INTENSITY = 10.0
-
-
-@dataclass(frozen=True)
-class SynthOptions:
-    """lr: (W, H) of the LR inputs; sr: HR/LR ratio; views: training views;
-    test_views: held-out views; psf_sigma: Gaussian PSF sigma in LR pixels;
-    ss: sub-pixel rays per HR pixel side; relit_views: test views rendered under moved lights;
-    lights_per_view: moved lights per relit view (the k-th relit view starts at light pattern k,
-    so three relit views with one light each cover three different light placements)."""
-
-    lr: tuple[int, int] = (120, 90)
-    sr: int = 4
-    views: int = 40
-    test_views: int = 8
-    psf_sigma: float = 0.375
-    seed: int = 0
-    ss: int = 2
-    relit_views: int = 3
-    lights_per_view: int = 1
-
-    def validate(self) -> None:
-        W, H = self.lr
-        if W < 8 or H < 8:
-            raise SrvolError(f"--lr {W}x{H}: too small (at least 8x8)")
-        if self.sr < 1 or self.sr > 16:
-            raise SrvolError(f"--sr {self.sr}: must be 1..16")
-        if self.views < 1 or self.test_views < 1:
-            raise SrvolError("--views and --test-views must be >= 1")
-        if not (0 <= self.psf_sigma <= 5):
-            raise SrvolError(f"--psf-sigma {self.psf_sigma}: must be in [0, 5] LR pixels")
 
 
 def fibonacci_directions(n: int, offset: float) -> np.ndarray:
@@ -78,12 +47,39 @@ def make_cameras(opts: SynthOptions, n: int, offset: float) -> list[Camera]:
     for d in fibonacci_directions(n, offset):
         d = 0.97 * d + 0.03 * np.array([0, 0, 1.0])  # keep off the exact poles
         d /= np.linalg.norm(d)
-        cams.append(Camera.look_at(CAMERA_DISTANCE * d, [0, 0, 0], [0, 0, 1], K, W, H))
+        cam = Camera.look_at(CAMERA_DISTANCE / opts.zoom * d, [0, 0, 0], [0, 0, 1], K, W, H)
+        cams.append(aim_camera(cam, opts.aim))
     return cams
 
 
-def moved_lights(camera: Camera, count: int, rng: np.random.Generator, first: int = 0) -> list[PointLight]:
-    """Lights away from the camera: rotated about the vertical axis by 40-80 deg, raised or lowered.
+def aim_camera(cam: Camera, aim: tuple[float, float]) -> Camera:
+    """``cam`` turned about its centre so that the point on its optical axis shows at ``aim``
+    (fractions of the half-width and half-height from the image centre, x right, y down)."""
+    if aim == (0.0, 0.0):
+        return cam
+    q = torch.tensor([aim[0] * cam.width / 2 / cam.K[0, 0].item(), aim[1] * cam.height / 2 / cam.K[1, 1].item(),
+                      1.0], dtype=torch.float64)
+    q = q / q.norm()
+    # the rotation taking the optical axis z onto q (Rodrigues, axis z x q)
+    v = torch.linalg.cross(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), q)
+    vx = torch.tensor([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]], dtype=torch.float64)
+    turn = torch.eye(3, dtype=torch.float64) + vx + vx @ vx / (1 + q[2])
+    W2C = cam.W2C.clone()
+    W2C[:3, :3] = turn @ cam.W2C[:3, :3]
+    W2C[:3, 3] = -W2C[:3, :3] @ cam.center.double()
+    return Camera(K=cam.K, W2C=W2C, width=cam.width, height=cam.height)
+
+
+def flash_intensity(opts: SynthOptions) -> float:
+    """The co-located light's intensity: the default's times the exposure, over zoom^2 (the
+    irradiance on the object does not depend on the zoom)."""
+    return LIGHT_INTENSITY * opts.exposure / opts.zoom ** 2
+
+
+def moved_lights(camera: Camera, count: int, rng: np.random.Generator, first: int = 0,
+                 intensity: float = LIGHT_INTENSITY) -> list[PointLight]:
+    """Lights away from the camera: rotated about the vertical axis by 40-80 deg, raised or lowered,
+    at distance 2.2 from the origin with the irradiance of a flash of ``intensity`` at the camera.
 
     Pattern k alternates the side (k even: left, odd: right) and lifts every third light above.
     """
@@ -95,8 +91,8 @@ def moved_lights(camera: Camera, count: int, rng: np.random.Generator, first: in
         p = rot @ c
         p[2] += (0.8 if k % 3 == 2 else -0.4) * (1 + 0.2 * rng.random())
         p = p / np.linalg.norm(p) * 2.2
-        scale = (2.2 / CAMERA_DISTANCE) ** 2
-        out.append(PointLight.make(p.tolist(), [LIGHT_INTENSITY * scale] * 3))
+        scale = (2.2 / camera.center.norm().item()) ** 2
+        out.append(PointLight.make(p.tolist(), [intensity * scale] * 3))
     return out
 
 
@@ -127,11 +123,13 @@ def gt_mesh(surface: Surface, resolution: int = 256):
     return trimesh.Trimesh(vertices=v, faces=f, process=True)
 
 
-def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force: bool = False,
+def synthesize(name: str, out: Path, opts: SynthOptions | None = None, force: bool = False,
                progress: bool = True) -> Path:
-    """Write built-in scene ``name`` into ``out`` (atomically) and return its path."""
-    opts.validate()
+    """Write built-in scene ``name`` into ``out`` (atomically) and return its path; ``opts``
+    defaults to the scene's own (``SCENES[name].synth``)."""
     spec = get_scene(name)
+    opts = opts or spec.synth
+    opts.validate()
     folder = AtomicFolder(out, force=force)  # refuses an existing --out before any work
     torch.manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)
@@ -140,7 +138,8 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
     test_cams = make_cameras(opts, opts.test_views, offset=0.37)
     names_train = [f"{i:03d}" for i in range(opts.views)]
     names_test = [f"{opts.views + i:03d}" for i in range(opts.test_views)]
-    info = SceneInfo(color_space="linear", light_intensity=(LIGHT_INTENSITY,) * 3, psf_sigma_lr_px=opts.psf_sigma,
+    flash = flash_intensity(opts)
+    info = SceneInfo(color_space="linear", light_intensity=(flash,) * 3, psf_sigma_lr_px=opts.psf_sigma,
                      sr_factor=opts.sr, train=tuple(names_train), test=tuple(names_test))
     t0 = time.time()
     with folder as tmp:
@@ -150,7 +149,7 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
         bar = tqdm(jobs, desc=f"synth {name}", unit="view", disable=not progress)
         for stem, cam in bar:
             hr_cam = cam.scaled(opts.sr)
-            light = PointLight.at_camera(cam, [LIGHT_INTENSITY] * 3)
+            light = PointLight.at_camera(cam, [flash] * 3)
             is_test = stem in names_test
             # Training views are blurred by the PSF (sigma_hr = 1.5 px at x4), so one ray per
             # HR pixel suffices there; test views are GT and get ss x ss sub-pixel rays.
@@ -165,7 +164,7 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
                 write_exr(tmp / "gt" / "albedo" / f"{stem}.exr", r.albedo)
         relit = []
         for i, (stem, cam) in enumerate(list(zip(names_test, test_cams))[: opts.relit_views]):
-            for k, light in enumerate(moved_lights(cam, opts.lights_per_view, rng, first=i)):
+            for k, light in enumerate(moved_lights(cam, opts.lights_per_view, rng, first=i, intensity=flash)):
                 rname = f"{stem}_l{i + k}"
                 r = render(surface, cam.scaled(opts.sr), light, ss=opts.ss, shadows=True, maps=False)
                 write_exr(tmp / "gt" / "relit" / f"{rname}.exr", r.rgb)
@@ -174,7 +173,7 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
         write_scene_folder(tmp, views, info)
         atomic_write_text(tmp / "gt" / "hr_cameras.json", json.dumps(hr_cams, indent=1))
         atomic_write_text(tmp / "gt" / "relit.json", json.dumps(relit, indent=1))
-        gt_mesh(surface).export(tmp / "gt" / "mesh.ply")
+        gt_mesh(surface, opts.mesh_resolution).export(tmp / "gt" / "mesh.ply")
         atomic_write_text(tmp / "gt" / "synth.json", json.dumps(
             {"scene": name, "options": {**opts.__dict__, "lr": list(opts.lr)},
              "seconds": round(time.time() - t0, 2)}, indent=1))

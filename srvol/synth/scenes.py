@@ -19,6 +19,7 @@ from torch import Tensor
 
 from srvol.errors import SrvolError
 from srvol.images import srgb_to_linear
+from srvol.synth.options import SynthOptions
 from srvol.synth.surfaces import AnalyticSurface, MeshSurface, Surface
 from srvol.types import SurfaceMaterial
 
@@ -136,21 +137,10 @@ def pymeshlab_sample_mesh(name: str) -> Path:
     return path
 
 
-@lru_cache(maxsize=None)
 def bunny_mesh():
-    import trimesh
+    from srvol.synth.suite import sample_mesh
 
-    mesh = trimesh.load(pymeshlab_sample_mesh("bunny.obj"), force="mesh", process=True)
-    mesh.merge_vertices()
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    center = 0.5 * (v.max(0) + v.min(0))
-    v = v - center
-    v = v / np.linalg.norm(v, axis=1).max() * 0.8
-    # Stanford bunny is y-up: rotate so that +z is up, as in the other scenes.
-    v = v[:, [0, 2, 1]] * np.array([1, -1, 1])
-    m = trimesh.Trimesh(vertices=v, faces=np.asarray(mesh.faces), process=True)
-    trimesh.repair.fix_normals(m)
-    return m
+    return sample_mesh("bunny.obj", 0.8)
 
 
 def bunny_material(x: Tensor) -> SurfaceMaterial:
@@ -163,9 +153,12 @@ def bunny_material(x: Tensor) -> SurfaceMaterial:
 
 @dataclass(frozen=True)
 class BuiltinScene:
+    """A built-in scene: its GT surface and the capture ``srvol synth NAME`` makes of it by default."""
+
     name: str
     description: str
     make_surface: Callable[[], Surface]
+    synth: SynthOptions = SynthOptions()
 
 
 def _bumpy() -> Surface:
@@ -188,6 +181,24 @@ def _bunny() -> Surface:
     return MeshSurface(mesh=bunny_mesh(), material=bunny_material)
 
 
+def _suite(name: str) -> Callable[[], Surface]:
+    """The factory of a suite scene's surface (srvol.synth.suite imports this module's textures)."""
+    def make() -> Surface:
+        from srvol.synth.suite import SURFACES
+
+        return SURFACES[name]()
+
+    return make
+
+
+def _scene(name: str, description: str, lr: tuple[int, int], psf_sigma: float, views: int, test_views: int,
+           zoom: float, aim: tuple[float, float] = (0.0, 0.0), exposure: float = 1.0) -> BuiltinScene:
+    """A suite scene with its capture: LR size, PSF, views and framing (see ``SynthOptions``)."""
+    opts = SynthOptions(lr=lr, psf_sigma=psf_sigma, views=views, test_views=test_views, zoom=zoom, aim=aim,
+                        exposure=exposure)
+    return BuiltinScene(name, description, _suite(name), opts)
+
+
 SCENES: dict[str, BuiltinScene] = {
     "bumpy": BuiltinScene("bumpy", "analytic bumpy sphere, sub-LR-pixel grooves, astronaut albedo (default)", _bumpy),
     "bunny": BuiltinScene("bunny", "Stanford bunny from the pymeshlab wheel, coffee texture", _bunny),
@@ -195,8 +206,33 @@ SCENES: dict[str, BuiltinScene] = {
     "dark": BuiltinScene("dark", "the default shape with a very dark albedo (0.005..0.085; stability study)", _dark),
     "shiny": BuiltinScene("shiny", "the default shape under a near-mirror coat, roughness 0.1, F0 0.3 "
                                    "(stability study)", _shiny),
+    "torus": _scene("torus", "genus 1: tipped torus, high-frequency gravel albedo, large in the frame",
+                    (160, 120), 0.25, 40, 6, zoom=1.12),
+    "stool": _scene("stool", "thin legs and crossbars, flat seat with sharp edges, near-uniform pale wood; "
+                             "small, off-centre", (160, 120), 0.6, 32, 6, zoom=0.84, aim=(0.2, -0.1)),
+    "airplane": _scene("airplane", "pymeshlab's airplane: thin wings and tail, glossy paint over a photo; "
+                                   "off-centre", (320, 240), 0.5, 24, 4, zoom=0.96, aim=(-0.05, 0.05)),
+    "cup": _scene("cup", "a cup: concavity, thin wall, handle (genus 1), glossy near-uniform glaze; off-centre",
+                  (160, 120), 0.45, 40, 6, zoom=1.0, aim=(0.15, 0.1), exposure=0.8),
+    "die": _scene("die", "flat faces, sharp edges, 21 carved pips; high-frequency text albedo; small, off-centre",
+                  (120, 90), 0.75, 64, 8, zoom=0.8, aim=(-0.25, 0.2)),
+    "rings": _scene("rings", "two linked rings (genus 2, thin tubes), dark metal", (240, 180), 0.3, 32, 6,
+                    zoom=0.94, exposure=0.7),
+    "cow": _scene("cow", "pymeshlab's cow: smooth organic body, thin legs and horns, cat-photo albedo; "
+                         "off-centre", (320, 240), 0.7, 24, 4, zoom=0.9, aim=(0.1, -0.05)),
 }
 DEFAULT_SCENE = "bumpy"
+
+TUNING_SCENES = ("bumpy", "dark", "shiny", "glossy", "torus", "stool", "airplane")
+"""Scenes that presets may be tuned on (the default scene and its material variants among them)."""
+
+REPORT_SCENES = ("bunny", "cup", "die", "rings", "cow")
+"""Held-out scenes: reported, never tuned on (no shape or material shared with the tuning set)."""
+
+
+def scene_set(name: str) -> str:
+    """'tuning', 'report' or '' for a built-in scene."""
+    return "tuning" if name in TUNING_SCENES else "report" if name in REPORT_SCENES else ""
 
 
 def get_scene(name: str) -> BuiltinScene:
