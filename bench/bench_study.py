@@ -260,23 +260,10 @@ def output_status(m: dict) -> str:
 
 def bicubic_floor(scene_dir: Path) -> dict:
     """HR PSNR / SSIM of bicubic-upsampled LR test images against the HR GT (no 3D at all)."""
-    from scipy.ndimage import zoom
-
-    from srvol import metrics
     from srvol.data import load_scene
+    from srvol.evaluate import bicubic_reference
 
-    scene = load_scene(scene_dir)
-    sr = scene.info.sr_factor
-    ps, ss = [], []
-    for v in scene.test_views():
-        if v.name not in EVAL_VIEWS:
-            continue
-        gt = scene.gt.image("hr", v.name)
-        up = np.stack([zoom(v.image[..., c], sr, order=3, grid_mode=True, mode="nearest")
-                       for c in range(3)], -1).clip(0, None)
-        ps.append(metrics.psnr(up, gt))
-        ss.append(metrics.ssim(up, gt))
-    return {"psnr_hr": float(np.mean(ps)), "ssim_hr": float(np.mean(ss))}
+    return bicubic_reference(load_scene(scene_dir), list(EVAL_VIEWS))
 
 
 # ----------------------------------------------------------------------------- output

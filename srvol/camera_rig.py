@@ -31,8 +31,9 @@ def rig_intrinsics(width: int, height: int) -> Tensor:
     return torch.tensor([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], dtype=torch.float64)
 
 
-def rig_camera(direction, width: int, height: int) -> Camera:
-    """The rig's camera at ``CAMERA_DISTANCE * direction`` (a unit (3,) array or tensor) looking at
-    the origin, +z up in the image."""
-    eye = CAMERA_DISTANCE * torch.as_tensor(direction)
+def rig_camera(direction, width: int, height: int, distance: float = CAMERA_DISTANCE) -> Camera:
+    """The rig's camera at ``distance * direction`` (a unit (3,) array or tensor) looking at the
+    origin, +z up in the image. The intrinsics do not depend on ``distance``: a closer camera
+    shows the object larger (a scene's zoom)."""
+    eye = distance * torch.as_tensor(direction)
     return Camera.look_at(eye, [0, 0, 0], [0, 0, 1], rig_intrinsics(width, height), width, height)

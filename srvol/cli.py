@@ -16,42 +16,47 @@ from srvol.errors import SrvolError
 # ----------------------------------------------------------------------------- synth / inspect
 
 def _add_synth(sub) -> None:
-    from srvol.synth.generate import SynthOptions
     from srvol.synth.scenes import DEFAULT_SCENE, SCENES
 
-    d = SynthOptions()
+    d = SCENES[DEFAULT_SCENE].synth
     p = sub.add_parser("synth", help="write a built-in synthetic scene with ground truth",
                        description="Render a built-in scene by the paper's protocol: HR render with a "
                                    "co-located point light, Gaussian PSF blur, decimation to LR; plus GT "
-                                   "(HR test views, normals, albedo, moved-light renders, mesh).")
+                                   "(HR test views, normals, albedo, moved-light renders, mesh). Each scene has "
+                                   "its own LR size, PSF, views and framing (--list); a flag overrides one of them.")
     p.add_argument("name", nargs="?", default=DEFAULT_SCENE, help=f"scene name ({', '.join(SCENES)}; "
                                                                   f"default {DEFAULT_SCENE})")
     p.add_argument("--out", type=Path, help="scene folder to write (required unless --list)")
-    p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
-    p.add_argument("--lr", type=image_size, default=d.lr, help=f"LR image size WxH (default {d.lr[0]}x{d.lr[1]})")
-    p.add_argument("--sr", type=int, default=d.sr, help=f"super-resolution factor HR/LR (default {d.sr})")
-    p.add_argument("--views", type=int, default=d.views, help=f"training views (default {d.views})")
-    p.add_argument("--test-views", type=int, default=d.test_views, help=f"held-out views (default {d.test_views})")
-    p.add_argument("--psf-sigma", type=float, default=d.psf_sigma,
-                   help=f"Gaussian PSF sigma in LR pixels (default {d.psf_sigma})")
-    p.add_argument("--seed", type=int, default=d.seed, help="random seed (default 0)")
+    p.add_argument("--list", action="store_true",
+                   help="list the built-in scenes, their tuning/report set and capture defaults, and exit")
+    p.add_argument("--lr", type=image_size, help=f"LR image size WxH (default: the scene's; {DEFAULT_SCENE} "
+                                            f"{d.lr[0]}x{d.lr[1]})")
+    p.add_argument("--sr", type=int, help=f"super-resolution factor HR/LR (default {d.sr})")
+    p.add_argument("--views", type=int, help=f"training views (default: the scene's; {DEFAULT_SCENE} {d.views})")
+    p.add_argument("--test-views", type=int, help=f"held-out views (default: the scene's; {DEFAULT_SCENE} "
+                                                  f"{d.test_views})")
+    p.add_argument("--psf-sigma", type=float,
+                   help=f"Gaussian PSF sigma in LR pixels (default: the scene's; {DEFAULT_SCENE} {d.psf_sigma})")
+    p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--sheet", action="store_true", help="also write sheet.png (LR | HR GT | normals | albedo | relit)")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=_run_synth)
 
 
 def _run_synth(args) -> int:
-    from srvol.synth.generate import SynthOptions, synthesize
-    from srvol.synth.scenes import DEFAULT_SCENE, SCENES
+    from dataclasses import replace
+
+    from srvol.synth.generate import synthesize
+    from srvol.synth.scenes import get_scene
 
     if args.list:
-        for name, spec in SCENES.items():
-            print(f"{name:8s} {spec.description}{'  [default]' if name == DEFAULT_SCENE else ''}")
+        print(_scene_list())
         return 0
     if args.out is None:
         raise SrvolError("synth needs --out DIR")
-    opts = SynthOptions(lr=args.lr, sr=args.sr, views=args.views, test_views=args.test_views,
-                        psf_sigma=args.psf_sigma, seed=args.seed)
+    given = {"lr": args.lr, "sr": args.sr, "views": args.views, "test_views": args.test_views,
+             "psf_sigma": args.psf_sigma, "seed": args.seed}
+    opts = replace(get_scene(args.name).synth, **{k: v for k, v in given.items() if v is not None})
     out = synthesize(args.name, args.out, opts, force=args.force)
     if args.sheet:
         from srvol.synth.sheet import scene_sheet
@@ -59,6 +64,20 @@ def _run_synth(args) -> int:
         scene_sheet(out, out / "sheet.png")
     print(f"wrote {out}")
     return 0
+
+
+def _scene_list() -> str:
+    """One line per built-in scene: name, set, LR size, PSF sigma, views + test views, framing, description."""
+    from srvol.synth.scenes import DEFAULT_SCENE, SCENES, scene_set
+
+    lines = [f"{'name':9s} {'set':7s} {'LR':8s} {'PSF':5s} {'views':6s} {'zoom':5s} {'aim':12s} description"]
+    for name, spec in SCENES.items():
+        o = spec.synth
+        aim = f"{o.aim[0]:+.2f},{o.aim[1]:+.2f}"
+        lines.append(f"{name:9s} {scene_set(name) or '-':7s} {o.lr[0]}x{o.lr[1]:<4d} {o.psf_sigma:<5.3g} "
+                     f"{o.views}+{o.test_views:<3d} {o.zoom:<5.3g} {aim:12s} {spec.description}"
+                     f"{'  [default]' if name == DEFAULT_SCENE else ''}")
+    return "\n".join(lines)
 
 
 def _add_inspect(sub) -> None:
@@ -164,7 +183,8 @@ def _neural_relit_fn(fields):
 # ----------------------------------------------------------------------------- bench
 
 BENCHES = {"all": "bench.run_all", "synth": "bench.bench_synth", "train": "bench.bench_train",
-           "stage2": "bench.bench_stage2", "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study"}
+           "stage2": "bench.bench_stage2", "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study",
+           "suite": "bench.bench_suite"}
 
 
 def _add_bench(sub) -> None:
@@ -175,7 +195,8 @@ def _add_bench(sub) -> None:
                                    "name go to the benchmark, e.g. `srvol bench study --budget 120 --only sweep`.")
     p.add_argument("which", nargs="?", default="all", choices=tuple(BENCHES),
                    help="synth, train (SR vs noSR vs Vol-SR, paper), stage2 (stage-2 PSF samplers on the train runs), export, relight, study (N_s sweep, "
-                        "stability, capacity) or all (default)")
+                        "stability, capacity), suite (every built-in scene, tuning and report sets; hours, "
+                        "resumable; not part of 'all') or all (default)")
     p.add_argument("args", nargs=argparse.REMAINDER, help="passed on to the benchmark")
     p.set_defaults(func=_run_bench)
 

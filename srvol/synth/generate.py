@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,43 +19,13 @@ from tqdm import tqdm
 from srvol.atomic import AtomicFolder, atomic_write_text
 from srvol.camera_rig import CAMERA_DISTANCE, RIG_LIGHT_INTENSITY, rig_camera
 from srvol.data import SceneInfo, View, camera_to_json, write_scene_folder
-from srvol.errors import SrvolError
 from srvol.images import write_exr
-from srvol.psf import DEFAULT_SIGMA_LR_PX, blur_decimate
+from srvol.psf import blur_decimate
+from srvol.synth.options import SynthOptions
 from srvol.synth.render import render
 from srvol.synth.scenes import get_scene
 from srvol.synth.surfaces import MeshSurface, Surface
 from srvol.types import Camera, PointLight
-
-
-@dataclass(frozen=True)
-class SynthOptions:
-    """lr: (W, H) of the LR inputs; sr: HR/LR ratio; views: training views;
-    test_views: held-out views; psf_sigma: Gaussian PSF sigma in LR pixels;
-    ss: sub-pixel rays per HR pixel side; relit_views: test views rendered under moved lights;
-    lights_per_view: moved lights per relit view (the k-th relit view starts at light pattern k,
-    so three relit views with one light each cover three different light placements)."""
-
-    lr: tuple[int, int] = (120, 90)
-    sr: int = 4
-    views: int = 40
-    test_views: int = 8
-    psf_sigma: float = DEFAULT_SIGMA_LR_PX
-    seed: int = 0
-    ss: int = 2
-    relit_views: int = 3
-    lights_per_view: int = 1
-
-    def validate(self) -> None:
-        W, H = self.lr
-        if W < 8 or H < 8:
-            raise SrvolError(f"--lr {W}x{H}: too small (at least 8x8)")
-        if self.sr < 1 or self.sr > 16:
-            raise SrvolError(f"--sr {self.sr}: must be 1..16")
-        if self.views < 1 or self.test_views < 1:
-            raise SrvolError("--views and --test-views must be >= 1")
-        if not (0 <= self.psf_sigma <= 5):
-            raise SrvolError(f"--psf-sigma {self.psf_sigma}: must be in [0, 5] LR pixels")
 
 
 def fibonacci_directions(n: int, offset: float) -> np.ndarray:
@@ -76,14 +45,38 @@ def make_cameras(opts: SynthOptions, n: int, offset: float) -> list[Camera]:
     for d in fibonacci_directions(n, offset):
         d = 0.97 * d + 0.03 * np.array([0, 0, 1.0])  # keep off the exact poles
         d /= np.linalg.norm(d)
-        cams.append(rig_camera(d, W, H))
+        cams.append(aim_camera(rig_camera(d, W, H, distance=CAMERA_DISTANCE / opts.zoom), opts.aim))
     return cams
+
+
+def aim_camera(cam: Camera, aim: tuple[float, float]) -> Camera:
+    """``cam`` turned about its centre so that the point on its optical axis shows at ``aim``
+    (fractions of the half-width and half-height from the image centre, x right, y down)."""
+    if aim == (0.0, 0.0):
+        return cam
+    q = torch.tensor([aim[0] * cam.width / 2 / cam.K[0, 0].item(), aim[1] * cam.height / 2 / cam.K[1, 1].item(),
+                      1.0], dtype=torch.float64)
+    q = q / q.norm()
+    # the rotation taking the optical axis z onto q (Rodrigues, axis z x q)
+    v = torch.linalg.cross(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), q)
+    vx = torch.tensor([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]], dtype=torch.float64)
+    turn = torch.eye(3, dtype=torch.float64) + vx + vx @ vx / (1 + q[2])
+    W2C = cam.W2C.clone()
+    W2C[:3, :3] = turn @ cam.W2C[:3, :3]
+    W2C[:3, 3] = -W2C[:3, :3] @ cam.center.double()
+    return Camera(K=cam.K, W2C=W2C, width=cam.width, height=cam.height)
+
+
+def flash_intensity(opts: SynthOptions) -> float:
+    """The co-located light's intensity: the default's times the exposure, over zoom^2 (the
+    irradiance on the object does not depend on the zoom)."""
+    return RIG_LIGHT_INTENSITY * opts.exposure / opts.zoom ** 2
 
 
 def moved_lights(flash: PointLight, count: int, rng: np.random.Generator, first: int = 0) -> list[PointLight]:
     """Lights away from a view's ``flash`` (its co-located light): the flash's position rotated about
     the vertical axis by 40-80 deg, raised or lowered, moved to distance 2.2 from the origin, and its
-    intensity scaled by (2.2 / CAMERA_DISTANCE)^2 so that the object receives about the same irradiance.
+    intensity scaled by (2.2 / flash distance)^2 so that the object receives about the same irradiance.
 
     Pattern k alternates the side (k even: left, odd: right) and lifts every third light above.
     """
@@ -95,7 +88,7 @@ def moved_lights(flash: PointLight, count: int, rng: np.random.Generator, first:
         p = rot @ c
         p[2] += (0.8 if k % 3 == 2 else -0.4) * (1 + 0.2 * rng.random())
         p = p / np.linalg.norm(p) * 2.2
-        scale = (2.2 / CAMERA_DISTANCE) ** 2
+        scale = (2.2 / float(np.linalg.norm(c))) ** 2
         out.append(PointLight.make(p.tolist(), (flash.intensity * scale).tolist()))
     return out
 
@@ -127,11 +120,13 @@ def gt_mesh(surface: Surface, resolution: int = 256):
     return trimesh.Trimesh(vertices=v, faces=f, process=True)
 
 
-def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force: bool = False,
+def synthesize(name: str, out: Path, opts: SynthOptions | None = None, force: bool = False,
                progress: bool = True) -> Path:
-    """Write built-in scene ``name`` into ``out`` (atomically) and return its path."""
-    opts.validate()
+    """Write built-in scene ``name`` into ``out`` (atomically) and return its path; ``opts``
+    defaults to the scene's own (``SCENES[name].synth``)."""
     spec = get_scene(name)
+    opts = opts or spec.synth
+    opts.validate()
     folder = AtomicFolder(out, force=force)  # refuses an existing --out before any work
     torch.manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)
@@ -140,7 +135,7 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
     test_cams = make_cameras(opts, opts.test_views, offset=0.37)
     names_train = [f"{i:03d}" for i in range(opts.views)]
     names_test = [f"{opts.views + i:03d}" for i in range(opts.test_views)]
-    intensity = (RIG_LIGHT_INTENSITY,) * 3  # the flash of every view; moved lights derive theirs from it
+    intensity = (flash_intensity(opts),) * 3  # the flash of every view; moved lights derive theirs from it
     info = SceneInfo(color_space="linear", light_intensity=intensity, psf_sigma_lr_px=opts.psf_sigma,
                      sr_factor=opts.sr, train=tuple(names_train), test=tuple(names_test))
     t0 = time.time()
@@ -176,7 +171,7 @@ def synthesize(name: str, out: Path, opts: SynthOptions = SynthOptions(), force:
         write_scene_folder(tmp, views, info)
         atomic_write_text(tmp / "gt" / "hr_cameras.json", json.dumps(hr_cams, indent=1))
         atomic_write_text(tmp / "gt" / "relit.json", json.dumps(relit, indent=1))
-        gt_mesh(surface).export(tmp / "gt" / "mesh.ply")
+        gt_mesh(surface, opts.mesh_resolution).export(tmp / "gt" / "mesh.ply")
         atomic_write_text(tmp / "gt" / "synth.json", json.dumps(
             {"scene": name, "options": {**opts.__dict__, "lr": list(opts.lr)},
              "seconds": round(time.time() - t0, 2)}, indent=1))

@@ -7,51 +7,17 @@ and a GT mesh.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
-from pathlib import Path
 from typing import Callable
 
-import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from srvol.errors import SrvolError
 from srvol.geometry import spherical_uv
-from srvol.images import srgb_to_linear
+from srvol.synth.assets import sample_mesh, sample_texture, texture, triplanar
+from srvol.synth.options import SynthOptions
 from srvol.synth.surfaces import AnalyticSurface, MeshSurface, Surface
 from srvol.types import SurfaceMaterial
-
-
-@lru_cache(maxsize=None)
-def _texture(name: str) -> Tensor:
-    """A scikit-image bundled texture as a linear RGB (1, 3, H, W) float64 tensor."""
-    import skimage.data
-
-    img = getattr(skimage.data, name)()
-    if img.ndim == 2:
-        img = np.stack([img] * 3, axis=-1)
-    lin = srgb_to_linear(img[..., :3].astype(np.float32) / 255.0)
-    return torch.from_numpy(lin).double().permute(2, 0, 1)[None]
-
-
-def _sample(tex: Tensor, u: Tensor, v: Tensor) -> Tensor:
-    """Bilinear, wrapping lookup of (1, 3, H, W) at u, v in [0, 1) -> (N, 3)."""
-    u = torch.remainder(u, 1.0) * 2 - 1
-    v = torch.remainder(v, 1.0) * 2 - 1
-    grid = torch.stack([u, v], -1)[None, None]
-    return F.grid_sample(tex, grid.to(tex), mode="bilinear", padding_mode="border",
-                         align_corners=False)[0, :, 0].T
-
-
-def _triplanar(tex: Tensor, x: Tensor, scale: float) -> Tensor:
-    """Triplanar projection of a texture (weights |n|^4 by the position's direction)."""
-    w = (x / x.norm(dim=-1, keepdim=True).clamp_min(1e-9)).abs() ** 4
-    w = w / w.sum(-1, keepdim=True)
-    cx = _sample(tex, x[:, 1] * scale, x[:, 2] * scale)
-    cy = _sample(tex, x[:, 0] * scale, x[:, 2] * scale)
-    cz = _sample(tex, x[:, 0] * scale, x[:, 1] * scale)
-    return w[:, :1] * cx + w[:, 1:2] * cy + w[:, 2:] * cz
 
 
 # ----------------------------------------------------------------------------- shapes
@@ -74,9 +40,9 @@ def bumpy_sdf(x: Tensor) -> Tensor:
 
 
 def bumpy_material(x: Tensor) -> SurfaceMaterial:
-    tex = _texture("astronaut")
+    tex = texture("astronaut")
     uv = spherical_uv(x)  # the texture's row 0 (grid_sample's -1) at the north pole: v runs down from +z
-    alb = 0.05 + 0.8 * _sample(tex, 2 * uv[:, 0], 1 - uv[:, 1])
+    alb = 0.05 + 0.8 * sample_texture(tex, 2 * uv[:, 0], 1 - uv[:, 1])
     n = x.shape[0]
     return SurfaceMaterial(albedo=alb, specular=torch.full((n, 1), 0.04, dtype=x.dtype),
                            alpha=torch.full((n, 1), 0.25, dtype=x.dtype))
@@ -107,8 +73,8 @@ def glossy_sdf(x: Tensor) -> Tensor:
 
 
 def glossy_material(x: Tensor) -> SurfaceMaterial:
-    tex = _texture("brick")
-    base = 0.1 + 0.6 * _triplanar(tex, x, 1.2)
+    tex = texture("brick")
+    base = 0.1 + 0.6 * triplanar(tex, x, 1.2)
     tint = torch.stack([0.9 + 0.1 * torch.sin(3 * x[:, 0]), 0.55 + 0.1 * x[:, 1], 0.35 + 0.1 * x[:, 2]], -1)
     albedo = (base * tint).clamp(0.02, 0.95)
     # roughness in stripes along z (0.15 .. 0.6), specular by azimuth (0.02 .. 0.3)
@@ -117,38 +83,13 @@ def glossy_material(x: Tensor) -> SurfaceMaterial:
     return SurfaceMaterial(albedo=albedo, specular=spec[:, None], alpha=(rough ** 2)[:, None])
 
 
-def pymeshlab_sample_mesh(name: str) -> Path:
-    """Path of a mesh shipped inside the installed pymeshlab wheel (not vendored)."""
-    try:
-        import pymeshlab
-    except ImportError:
-        raise SrvolError("the 'bunny' scene needs pymeshlab installed (its wheel ships the mesh)") from None
-    path = Path(pymeshlab.__file__).parent / "tests" / "sample_meshes" / name
-    if not path.is_file():
-        raise SrvolError(f"{path}: sample mesh not found in the installed pymeshlab")
-    return path
-
-
-@lru_cache(maxsize=None)
 def bunny_mesh():
-    import trimesh
-
-    mesh = trimesh.load(pymeshlab_sample_mesh("bunny.obj"), force="mesh", process=True)
-    mesh.merge_vertices()
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    center = 0.5 * (v.max(0) + v.min(0))
-    v = v - center
-    v = v / np.linalg.norm(v, axis=1).max() * 0.8
-    # Stanford bunny is y-up: rotate so that +z is up, as in the other scenes.
-    v = v[:, [0, 2, 1]] * np.array([1, -1, 1])
-    m = trimesh.Trimesh(vertices=v, faces=np.asarray(mesh.faces), process=True)
-    trimesh.repair.fix_normals(m)
-    return m
+    return sample_mesh("bunny.obj", 0.8)
 
 
 def bunny_material(x: Tensor) -> SurfaceMaterial:
-    tex = _texture("coffee")
-    alb = 0.05 + 0.85 * _triplanar(tex, x, 1.5)
+    tex = texture("coffee")
+    alb = 0.05 + 0.85 * triplanar(tex, x, 1.5)
     n = x.shape[0]
     return SurfaceMaterial(albedo=alb, specular=torch.full((n, 1), 0.06, dtype=x.dtype),
                            alpha=torch.full((n, 1), 0.35 ** 2, dtype=x.dtype))
@@ -156,9 +97,12 @@ def bunny_material(x: Tensor) -> SurfaceMaterial:
 
 @dataclass(frozen=True)
 class BuiltinScene:
+    """A built-in scene: its GT surface and the capture ``srvol synth NAME`` makes of it by default."""
+
     name: str
     description: str
     make_surface: Callable[[], Surface]
+    synth: SynthOptions = SynthOptions()
 
 
 def _bumpy() -> Surface:
@@ -181,6 +125,24 @@ def _bunny() -> Surface:
     return MeshSurface(mesh=bunny_mesh(), material=bunny_material)
 
 
+def _suite(name: str) -> Callable[[], Surface]:
+    """The factory of a suite scene's surface (imported when the scene is made)."""
+    def make() -> Surface:
+        from srvol.synth.suite import SURFACES
+
+        return SURFACES[name]()
+
+    return make
+
+
+def _scene(name: str, description: str, lr: tuple[int, int], psf_sigma: float, views: int, test_views: int,
+           zoom: float, aim: tuple[float, float] = (0.0, 0.0), exposure: float = 1.0) -> BuiltinScene:
+    """A suite scene with its capture: LR size, PSF, views and framing (see ``SynthOptions``)."""
+    opts = SynthOptions(lr=lr, psf_sigma=psf_sigma, views=views, test_views=test_views, zoom=zoom, aim=aim,
+                        exposure=exposure)
+    return BuiltinScene(name, description, _suite(name), opts)
+
+
 SCENES: dict[str, BuiltinScene] = {
     "bumpy": BuiltinScene("bumpy", "analytic bumpy sphere, sub-LR-pixel grooves, astronaut albedo (default)", _bumpy),
     "bunny": BuiltinScene("bunny", "Stanford bunny from the pymeshlab wheel, coffee texture", _bunny),
@@ -188,8 +150,33 @@ SCENES: dict[str, BuiltinScene] = {
     "dark": BuiltinScene("dark", "the default shape with a very dark albedo (0.005..0.085; stability study)", _dark),
     "shiny": BuiltinScene("shiny", "the default shape under a near-mirror coat, roughness 0.1, F0 0.3 "
                                    "(stability study)", _shiny),
+    "torus": _scene("torus", "genus 1: tipped torus, high-frequency gravel albedo, large in the frame",
+                    (160, 120), 0.25, 40, 6, zoom=1.12),
+    "stool": _scene("stool", "thin legs and crossbars, flat seat with sharp edges, near-uniform pale wood; "
+                             "small, off-centre", (160, 120), 0.6, 32, 6, zoom=0.84, aim=(0.2, -0.1)),
+    "airplane": _scene("airplane", "pymeshlab's airplane: thin wings and tail, glossy paint over a photo; "
+                                   "off-centre", (320, 240), 0.5, 24, 4, zoom=0.96, aim=(-0.05, 0.05)),
+    "cup": _scene("cup", "a cup: concavity, thin wall, handle (genus 1), glossy near-uniform glaze; off-centre",
+                  (160, 120), 0.45, 40, 6, zoom=1.0, aim=(0.15, 0.1), exposure=0.8),
+    "die": _scene("die", "flat faces, sharp edges, 21 carved pips; high-frequency text albedo; small, off-centre",
+                  (120, 90), 0.75, 64, 8, zoom=0.8, aim=(-0.25, 0.2)),
+    "rings": _scene("rings", "two linked rings (genus 2, thin tubes), dark metal", (240, 180), 0.3, 32, 6,
+                    zoom=0.94, exposure=0.7),
+    "cow": _scene("cow", "pymeshlab's cow: smooth organic body, thin legs and horns, cat-photo albedo; "
+                         "off-centre", (320, 240), 0.7, 24, 4, zoom=0.9, aim=(0.1, -0.05)),
 }
 DEFAULT_SCENE = "bumpy"
+
+TUNING_SCENES = ("bumpy", "dark", "shiny", "glossy", "torus", "stool", "airplane")
+"""Scenes that presets may be tuned on (the default scene and its material variants among them)."""
+
+REPORT_SCENES = ("bunny", "cup", "die", "rings", "cow")
+"""Held-out scenes: reported, never tuned on (no shape or material shared with the tuning set)."""
+
+
+def scene_set(name: str) -> str:
+    """'tuning', 'report' or '' for a built-in scene."""
+    return "tuning" if name in TUNING_SCENES else "report" if name in REPORT_SCENES else ""
 
 
 def get_scene(name: str) -> BuiltinScene:

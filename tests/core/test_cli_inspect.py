@@ -115,9 +115,13 @@ def test_inspect_img_size_wrong(runs):
 def test_synth_list_names_the_builtin_scenes(runs):
     proc = runs.synth_list.result()
     assert proc.returncode == 0, proc.stderr
-    names = [line.split()[0] for line in proc.stdout.strip().splitlines()]
-    assert names == ["bumpy", "bunny", "glossy", "dark", "shiny"]
-    assert "[default]" in proc.stdout.splitlines()[0]
+    header, *lines = proc.stdout.strip().splitlines()
+    assert header.split()[:3] == ["name", "set", "LR"]
+    from srvol.synth.scenes import SCENES, scene_set
+
+    assert [line.split()[0] for line in lines] == list(SCENES)
+    assert [line.split()[1] for line in lines] == [scene_set(n) for n in SCENES]
+    assert lines[0].startswith("bumpy     tuning  120x90") and "[default]" in lines[0]
 
 
 def test_synth_without_out_is_a_one_line_error(runs):

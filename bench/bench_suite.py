@@ -1,0 +1,256 @@
+"""Scene suite: auto's SR against noSR, Vol-SR and bicubic upsampling on every built-in scene,
+tuning and report sets side by side (`srvol synth --list` names the sets).
+
+    python -m bench.bench_suite [--budget 600] [--scenes torus,cup] [--variants none,gaussian,box]
+    python -m bench.bench_suite --collect   # re-tabulate the finished runs, train nothing
+
+Hours, not minutes: each scene is synthesised once (1-10 min at its default size), then every
+variant trains for --budget seconds (~10 min at 600 s) and is scored by `srvol eval` (a few
+minutes at 320x240). Run it over several sessions: synthesised scenes and finished runs are kept
+under --work (default bench/work/suite, not committed) and skipped on the next call, so a killed
+or partial suite continues where it stopped; only an unfinished run is trained again.
+
+For each scene one row: the bicubic reference (each test view's own LR image upsampled, scored
+against its HR GT: a 2D reference that sees the test view), HR PSNR and masked PSNR of every
+variant, and per run normal MAE, albedo PSNR, relit PSNR, train PSNR at the end, iterations,
+parameters and peak memory; means per set. Writes suite_table.md, suite_table.json and
+suite_psnr.png into --results (default bench/results).
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bench.bench_train import RESULTS, WORK, _run, train_psnr_at_end
+
+VARIANTS = {"none": "noSR", "gaussian": "SR (auto)", "box": "Vol-SR"}
+"""`srvol train --sr` values and their names in the table."""
+
+RUN_KEYS = ("psnr_hr", "psnr_hr_masked", "ssim_hr", "normal_mae_deg", "albedo_psnr", "relit_psnr", "chamfer")
+
+
+def suite_scenes() -> list[str]:
+    from srvol.synth.scenes import REPORT_SCENES, TUNING_SCENES
+
+    return [*TUNING_SCENES, *REPORT_SCENES]
+
+
+def scene_key(name: str, synth_args: str) -> str:
+    """The cache folder name of a scene: its name, plus a digest of any extra `srvol synth` flags."""
+    return name if not synth_args else f"{name}-{hashlib.sha1(synth_args.encode()).hexdigest()[:8]}"
+
+
+def ensure_scene(name: str, work: Path, synth_args: str) -> Path:
+    """The scene folder, synthesised with the scene's own defaults (plus ``synth_args``) unless cached."""
+    scene = work / "scenes" / scene_key(name, synth_args)
+    if not (scene / "cameras.json").is_file():  # srvol synth writes atomically: a folder is whole or absent
+        _run([sys.executable, "-m", "srvol", "synth", name, "--out", str(scene), "--force", *synth_args.split()])
+    return scene
+
+
+def length_args(args) -> list[str]:
+    """How long each run trains: --iters N when given, else --time-budget."""
+    return ["--iters", str(args.iters)] if args.iters else ["--time-budget", f"{args.budget:g}"]
+
+
+def run_folder(work: Path, key: str, sr: str, args) -> Path:
+    length = f"{args.iters}it" if args.iters else f"{int(args.budget)}s"
+    return work / "runs" / f"{key}_auto_{sr}_{length}"
+
+
+def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
+    """One variant's row: train and evaluate unless done before (--collect: never train). Keys of
+    RUN_KEYS plus train PSNR, iterations, parameters, peak memory and the commands; 'error' or
+    'missing' when there is no result."""
+    train = ["srvol", "train", str(scene), "--out", str(run), "--sr", sr, *length_args(args), "--quiet", "--force"]
+    ev = ["srvol", "eval", str(run)]
+    row: dict = {"command": " ".join(train) + " && " + " ".join(ev)}
+    summary, metrics = run / "train_summary.json", run / "metrics.json"
+    try:
+        if not summary.is_file() and not args.collect:
+            _run([sys.executable, "-m", *train])
+        if summary.is_file() and not metrics.is_file() and not args.collect:
+            _run([sys.executable, "-m", *ev])
+    except RuntimeError as e:  # a variant that fails is a result too
+        return {**row, "error": str(e)}
+    if not metrics.is_file():
+        return {**row, "missing": True}
+    m = json.loads(metrics.read_text())
+    s = json.loads(summary.read_text())
+    row.update({k: m[k] for k in RUN_KEYS if k in m})
+    row.update(train_psnr=train_psnr_at_end(run), iterations=s["iterations"], train_seconds=s["train_seconds"],
+               parameters=s.get("parameters", 0), peak_rss_gib=s.get("peak_rss_gib"))
+    return row
+
+
+def scene_row(name: str, args, work: Path) -> dict:
+    """Everything measured on one scene: its capture, the bicubic reference and each variant."""
+    from srvol.data import load_scene
+    from srvol.evaluate import bicubic_reference
+    from srvol.synth.scenes import get_scene, scene_set
+
+    key = scene_key(name, args.synth)
+    scene_dir = work / "scenes" / key if args.collect else ensure_scene(name, work, args.synth)
+    row = {"scene": name, "set": scene_set(name), "description": get_scene(name).description, "variants": {}}
+    if not (scene_dir / "cameras.json").is_file():
+        return row
+    scene = load_scene(scene_dir)
+    v0 = scene.views[scene.test[0]].camera
+    row.update(lr=f"{v0.width}x{v0.height}", psf_sigma=scene.info.psf_sigma_lr_px,
+               views=f"{len(scene.train)}+{len(scene.test)}", bicubic=bicubic_reference(scene))
+    for sr in args.variants:
+        row["variants"][sr] = train_and_eval(scene_dir, run_folder(work, key, sr, args), sr, args)
+        print(f"{name} {sr}: " + json.dumps({k: v for k, v in row["variants"][sr].items() if k != "command"}),
+              flush=True)
+    return row
+
+
+# ----------------------------------------------------------------------------- tables
+
+def psnr_of(row: dict, column: str, key: str = "psnr_hr") -> float:
+    """A scene's value in a column ('bicubic' or a variant); NaN when it has none."""
+    src = row.get("bicubic", {}) if column == "bicubic" else row["variants"].get(column, {})
+    v = src.get(key)
+    return float(v) if isinstance(v, (int, float)) else float("nan")
+
+
+def set_means(rows: list[dict], columns: list[str], key: str) -> dict[str, dict[str, float]]:
+    """Per set and column: the mean over the set's scenes that have every column (comparable means)."""
+    out = {}
+    for name in ("tuning", "report"):
+        full = [r for r in rows if r["set"] == name and all(math.isfinite(psnr_of(r, c, key)) for c in columns)]
+        out[name] = {c: float(np.mean([psnr_of(r, c, key) for r in full])) if full else float("nan")
+                     for c in columns}
+        out[name]["scenes"] = len(full)
+    return out
+
+
+def _f(v, spec: str = ".2f") -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
+
+
+def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
+    """The one-row-per-scene table: HR PSNR / masked PSNR of bicubic and every variant, set means."""
+    names = ["bicubic", *(VARIANTS[c] for c in columns[1:])]
+    lines = ["| scene | set | LR | PSF | views | " + " | ".join(f"{n} HR / masked" for n in names)
+             + " | SR - bicubic | SR - noSR |", "|" + "---|" * (len(names) + 7)]
+    for r in rows:
+        cells = [f"{_f(psnr_of(r, c))} / {_f(psnr_of(r, c, 'psnr_hr_masked'))}" for c in columns]
+        sr, none, bic = psnr_of(r, "gaussian"), psnr_of(r, "none"), psnr_of(r, "bicubic")
+        lines.append(f"| {r['scene']} | {r['set']} | {r.get('lr', '-')} | {_f(r.get('psf_sigma'), '.3g')} | "
+                     f"{r.get('views', '-')} | " + " | ".join(cells) + f" | {_f(sr - bic, '+.2f')} | "
+                     f"{_f(sr - none, '+.2f')} |")
+    hr, masked = set_means(rows, columns, "psnr_hr"), set_means(rows, columns, "psnr_hr_masked")
+    for name in ("tuning", "report"):
+        cells = [f"{_f(hr[name][c])} / {_f(masked[name][c])}" for c in columns]
+        g, n, b = (hr[name].get(c, float("nan")) for c in ("gaussian", "none", "bicubic"))
+        lines.append(f"| **{name} mean** ({hr[name]['scenes']} scenes) | {name} | | | | " + " | ".join(cells)
+                     + f" | {_f(g - b, '+.2f')} | {_f(g - n, '+.2f')} |")
+    return lines
+
+
+def detail_lines(rows: list[dict]) -> list[str]:
+    """One line per run: every metric of `srvol eval` and the run's cost."""
+    lines = ["| scene | variant | HR PSNR | masked PSNR | SSIM | normal MAE (deg) | albedo PSNR | relit PSNR | "
+             "train PSNR (LR) | iterations | train s | parameters | peak RSS GiB |", "|" + "---|" * 13]
+    for r in rows:
+        for sr, v in r["variants"].items():
+            if "error" in v or v.get("missing"):
+                lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {'failed: ' + v['error'] if 'error' in v else 'not run'} "
+                             "|" + " |" * 11)
+                continue
+            lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {_f(v.get('psnr_hr'))} | {_f(v.get('psnr_hr_masked'))} | "
+                         f"{_f(v.get('ssim_hr'), '.3f')} | {_f(v.get('normal_mae_deg'))} | {_f(v.get('albedo_psnr'))} | "
+                         f"{_f(v.get('relit_psnr'))} | {_f(v.get('train_psnr'))} | {v['iterations']} | "
+                         f"{v['train_seconds']:.0f} | {v['parameters'] / 1e6:.2f} M | {_f(v.get('peak_rss_gib'))} |")
+    return lines
+
+
+def write_table(rows: list[dict], args, out: Path, command: str) -> str:
+    columns = ["bicubic", *args.variants]
+    length = f"{args.iters} iterations" if args.iters else f"{args.budget:g} s"
+    lines = [f"# Scene suite: auto preset, {length} per run (2-core CPU)", "",
+             "HR metrics are means over each scene's held-out test views. bicubic: each test view's own LR image "
+             "upsampled bicubically (a 2D reference that sees the test view, which no 3D method is given). Set "
+             "means are over the scenes with every column. Reproduce: `srvol bench suite "
+             + command + "` (resumable; each run's commands below).", "",
+             *summary_lines(rows, columns), "", "## Every run", "", *detail_lines(rows), "", "Commands:", ""]
+    lines += [f"- {r['scene']} {VARIANTS[sr]}: `{v['command']}`" for r in rows for sr, v in r["variants"].items()]
+    text = "\n".join(lines) + "\n"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "suite_table.md").write_text(text)
+    (out / "suite_table.json").write_text(json.dumps(rows, indent=1, default=str))
+    return text
+
+
+def write_chart(rows: list[dict], variants: list[str], out: Path) -> None:
+    """suite_psnr.png: HR PSNR per scene, bicubic and every variant, tuning and report sets side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    columns = ["bicubic", *variants]
+    sets = [s for s in ("tuning", "report") if any(r["set"] == s for r in rows)] or ["tuning"]
+    widths = [max(1, sum(r["set"] == s for r in rows)) for s in sets]
+    fig, axes = plt.subplots(1, len(sets), figsize=(2 + 1.1 * sum(widths), 4), squeeze=False,
+                             gridspec_kw={"width_ratios": widths}, sharey=True)
+    bar = 0.8 / len(columns)
+    for ax, name in zip(axes[0], sets):
+        shown = [r for r in rows if r["set"] == name]
+        for k, c in enumerate(columns):
+            vals = [psnr_of(r, c) for r in shown]
+            ax.bar(np.arange(len(shown)) + (k - (len(columns) - 1) / 2) * bar, np.nan_to_num(vals), bar,
+                   label=VARIANTS.get(c, c), color=["C7", "C2", "C0", "C3"][k % 4])
+        ax.set_xticks(range(len(shown)), [r["scene"] for r in shown], rotation=30, fontsize=8)
+        ax.set_title(f"{name} set")
+        ax.grid(alpha=0.3, axis="y")
+    finite = [psnr_of(r, c) for r in rows for c in columns if math.isfinite(psnr_of(r, c))]
+    if finite:  # dB has no natural zero: start a little below the lowest bar
+        axes[0][0].set_ylim(max(0.0, math.floor(min(finite)) - 3), max(finite) + 2)
+    axes[0][0].set_ylabel("HR PSNR on held-out views (dB)")
+    axes[0][-1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "suite_psnr.png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", help="comma list of scenes (default: the tuning and report sets)")
+    ap.add_argument("--variants", default="none,gaussian",
+                    help="comma list of `srvol train --sr` values: none (noSR), gaussian (auto's SR), box (Vol-SR; "
+                         "add it on a subset, e.g. with --scenes) (default none,gaussian)")
+    ap.add_argument("--budget", type=float, default=600.0, help="training seconds per run (default 600)")
+    ap.add_argument("--iters", type=int, default=0, help="train this many iterations instead of --budget (tests)")
+    ap.add_argument("--collect", action="store_true", help="train nothing: re-tabulate the runs already in --work")
+    ap.add_argument("--synth", default="", help="extra `srvol synth` flags for every scene, e.g. "
+                                                "--synth='--lr 24x18 --views 4 --test-views 1' (cached apart)")
+    ap.add_argument("--work", type=Path, default=WORK / "suite", help="scenes and runs (default bench/work/suite)")
+    ap.add_argument("--results", type=Path, default=RESULTS, help="where the table and chart go (default bench/results)")
+    args = ap.parse_args(argv)
+    from srvol.synth.scenes import SCENES
+
+    scenes = args.scenes.split(",") if args.scenes else suite_scenes()
+    args.variants = [v for v in args.variants.split(",") if v]
+    unknown = [s for s in scenes if s not in SCENES] + [v for v in args.variants if v not in VARIANTS]
+    if unknown:
+        ap.error(f"unknown scene or variant: {', '.join(unknown)} (scenes: {', '.join(SCENES)}; "
+                 f"variants: {', '.join(VARIANTS)})")
+    rows = [scene_row(name, args, args.work) for name in scenes]
+    command = shlex.join(sys.argv[1:] if argv is None else argv)
+    print(write_table(rows, args, args.results, command), flush=True)
+    write_chart(rows, args.variants, args.results)
+    print(f"wrote {args.results / 'suite_table.md'}, suite_table.json and suite_psnr.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,32 @@
+"""`srvol bench suite` end to end on two tiny scenes: a table, a chart, and no work done twice."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+bench_suite = pytest.importorskip("bench.bench_suite", reason="the benchmarks live in a source checkout")
+
+TINY = ["--scenes", "cup,rings", "--variants", "gaussian", "--iters", "5",
+        "--synth=--lr 24x18 --views 4 --test-views 1"]
+
+
+def test_suite_bench_tabulates_two_tiny_scenes_and_reuses_its_runs(tmp_path):
+    work, results = tmp_path / "work", tmp_path / "results"
+    assert bench_suite.main([*TINY, "--work", str(work), "--results", str(results)]) == 0
+    rows = json.loads((results / "suite_table.json").read_text())
+    assert [r["scene"] for r in rows] == ["cup", "rings"] and {r["set"] for r in rows} == {"report"}
+    for r in rows:
+        assert r["bicubic"]["psnr_hr"] > 10 and r["bicubic"]["psnr_hr_masked"] > 5
+        run = r["variants"]["gaussian"]
+        assert run["iterations"] == 5 and run["parameters"] > 0 and run["psnr_hr"] > 10
+        assert {"normal_mae_deg", "albedo_psnr", "relit_psnr", "train_psnr", "peak_rss_gib"} <= set(run)
+    table = (results / "suite_table.md").read_text()
+    assert "| cup | report | 24x18 |" in table and "**report mean** (2 scenes)" in table
+    assert (results / "suite_psnr.png").stat().st_size > 0
+    # a second call finds the scenes and runs in --work and trains nothing
+    summaries = sorted((work / "runs").glob("*/train_summary.json"))
+    stamps = [p.stat().st_mtime_ns for p in summaries]
+    assert bench_suite.main([*TINY, "--work", str(work), "--results", str(results)]) == 0
+    assert [p.stat().st_mtime_ns for p in summaries] == stamps
+    assert json.loads((results / "suite_table.json").read_text()) == rows
