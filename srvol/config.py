@@ -255,7 +255,8 @@ def sampler_of_stage(cfg: TrainConfig, stage: int) -> SamplerConfig:
 def describe_ray_samples(cfg: TrainConfig) -> str:
     """Samples per ray, in words (printed by train)."""
     def words(s: SamplerConfig) -> str:
-        return f"{s.n_coarse} locating + {s.gradient_samples} gradient samples per ray"
+        locating = f"{s.n_coarse} + {s.n_refine} refining" if s.n_refine else f"{s.n_coarse}"
+        return f"{locating} locating + {s.gradient_samples} gradient samples per ray"
 
     text = words(cfg.sampler)
     if cfg.stage2_sampler is not None and cfg.stage2_sampler != cfg.sampler and cfg.stage2_fraction > 0:

@@ -51,6 +51,10 @@ def add_parser(sub) -> None:
                    help="--sr gaussian (mc, antithetic): share of training, 0..0.85, that uses one PSF ray per LR "
                         "pixel and N_s times as many pixels per step before switching to N_s rays per pixel "
                         "(default 0 = off: at 600 s it measured no gain, bench/results/train_table.md)")
+    p.add_argument("--refine-samples", type=int,
+                   help="no-grad samples added, in both stages and at evaluation, inside the first interval of "
+                        "each ray where the surface may lie (d + d' < spacing): parts thinner than the locating "
+                        "samples' spacing are found (default: by preset)")
     p.add_argument("--capacity", type=float, default=1.0,
                    help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
                         "this factor -- for capacity studies (default 1: what the scene needs)")
@@ -113,6 +117,12 @@ def build_config(scene, args):
         changes["psf_samples"] = 1
     if args.checkpoint_every is not None:
         changes["checkpoint_every"] = max(1, args.checkpoint_every)
+    if args.refine_samples is not None:
+        if not 0 <= args.refine_samples <= 64:
+            raise SrvolError(f"--refine-samples {args.refine_samples}: must be 0..64")
+        changes["sampler"] = replace(cfg.sampler, n_refine=args.refine_samples)
+        if cfg.stage2_sampler is not None:
+            changes["stage2_sampler"] = replace(cfg.stage2_sampler, n_refine=args.refine_samples)
     if args.time_budget <= 0 and args.iters is None:
         raise SrvolError("--time-budget must be > 0 (or give --iters)")
     return replace(cfg, **changes)

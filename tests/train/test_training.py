@@ -326,3 +326,21 @@ def test_the_logged_psnr_pools_the_pixels_of_the_last_steps():
     recent = deque([(1.0, 100.0), (0.01, 100.0)], maxlen=25)
     assert abs(recent_psnr(recent) - (-10 * math.log10(1.01 / 200))) < 1e-9
     assert math.isnan(recent_psnr(deque()))
+
+
+def test_refine_samples_reach_both_stages_and_are_said(default_scene):
+    """--refine-samples 8 adds 8 refining samples to the locating pass of stage 1 and stage 2, and
+    train's banner says so; out of range is one error line."""
+    import argparse
+
+    from srvol.train_cli import add_parser, build_config
+
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+    scene = load_scene(default_scene)
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--refine-samples", "8"]))
+    assert sampler_of_stage(cfg, 1).n_refine == sampler_of_stage(cfg, 2).n_refine == 8
+    assert "32 + 8 refining locating" in describe_ray_samples(cfg)
+    assert TrainConfig.from_json(cfg.to_json()) == cfg
+    with pytest.raises(SrvolError, match="--refine-samples"):
+        build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--refine-samples", "-1"]))
