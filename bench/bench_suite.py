@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.bench_train import RESULTS, WORK, _run, train_psnr_at_end
+from bench.paths import write_result
+from srvol.cli_parser import OneLineParser
 
 VARIANTS = {"none": "noSR", "gaussian": "SR (auto)", "box": "Vol-SR"}
 """`srvol train --sr` values and their names in the table."""
@@ -85,9 +87,21 @@ def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
     m = json.loads(metrics.read_text())
     s = json.loads(summary.read_text())
     row.update({k: m[k] for k in RUN_KEYS if k in m})
-    row.update(train_psnr=train_psnr_at_end(run), iterations=s["iterations"], train_seconds=s["train_seconds"],
+    row.update(train_psnr=train_psnr_at_end(run), stage2_swing_db=stage2_swing_db(run),
+               iterations=s["iterations"], train_seconds=s["train_seconds"],
                parameters=s.get("parameters", 0), peak_rss_gib=s.get("peak_rss_gib"))
     return row
+
+
+def stage2_swing_db(run: Path) -> float:
+    """The largest distance (dB) of stage 2's logged train PSNR from its running median, after the
+    first 10 % of stage 2's log lines (NaN without a stage 2): how steady the BRDF refinement is."""
+    log_path = run / "log.jsonl"
+    lines = log_path.read_text().splitlines() if log_path.is_file() else []
+    psnr = [r["psnr"] for r in map(json.loads, lines) if r.get("stage") == 2]
+    start = len(psnr) // 10
+    devs = [abs(psnr[i] - float(np.median(psnr[: i + 1]))) for i in range(start, len(psnr))]
+    return max(devs) if devs else float("nan")
 
 
 def scene_row(name: str, args, work: Path) -> dict:
@@ -159,16 +173,17 @@ def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
 def detail_lines(rows: list[dict]) -> list[str]:
     """One line per run: every metric of `srvol eval` and the run's cost."""
     lines = ["| scene | variant | HR PSNR | masked PSNR | SSIM | normal MAE (deg) | albedo PSNR | relit PSNR | "
-             "train PSNR (LR) | iterations | train s | parameters | peak RSS GiB |", "|" + "---|" * 13]
+             "train PSNR (LR) | stage-2 swing dB | iterations | train s | parameters | peak RSS GiB |", "|" + "---|" * 14]
     for r in rows:
         for sr, v in r["variants"].items():
             if "error" in v or v.get("missing"):
                 lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {'failed: ' + v['error'] if 'error' in v else 'not run'} "
-                             "|" + " |" * 11)
+                             "|" + " |" * 12)
                 continue
             lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {_f(v.get('psnr_hr'))} | {_f(v.get('psnr_hr_masked'))} | "
                          f"{_f(v.get('ssim_hr'), '.3f')} | {_f(v.get('normal_mae_deg'))} | {_f(v.get('albedo_psnr'))} | "
-                         f"{_f(v.get('relit_psnr'))} | {_f(v.get('train_psnr'))} | {v['iterations']} | "
+                         f"{_f(v.get('relit_psnr'))} | {_f(v.get('train_psnr'))} | {_f(v.get('stage2_swing_db'))} | "
+                         f"{v['iterations']} | "
                          f"{v['train_seconds']:.0f} | {v['parameters'] / 1e6:.2f} M | {_f(v.get('peak_rss_gib'))} |")
     return lines
 
@@ -185,8 +200,8 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
     lines += [f"- {r['scene']} {VARIANTS[sr]}: `{v['command']}`" for r in rows for sr, v in r["variants"].items()]
     text = "\n".join(lines) + "\n"
     out.mkdir(parents=True, exist_ok=True)
-    (out / "suite_table.md").write_text(text)
-    (out / "suite_table.json").write_text(json.dumps(rows, indent=1, default=str))
+    write_result(out / "suite_table.md", text)
+    write_result(out / "suite_table.json", json.dumps(rows, indent=1, default=str))
     return text
 
 
@@ -223,7 +238,7 @@ def write_chart(rows: list[dict], variants: list[str], out: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", help="comma list of scenes (default: the tuning and report sets)")
     ap.add_argument("--variants", default="none,gaussian",
                     help="comma list of `srvol train --sr` values: none (noSR), gaussian (auto's SR), box (Vol-SR; "

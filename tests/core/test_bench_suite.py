@@ -30,3 +30,15 @@ def test_suite_bench_tabulates_two_tiny_scenes_and_reuses_its_runs(tmp_path):
     assert bench_suite.main([*TINY, "--work", str(work), "--results", str(results)]) == 0
     assert [p.stat().st_mtime_ns for p in summaries] == stamps
     assert json.loads((results / "suite_table.json").read_text()) == rows
+
+
+def test_stage2_swing_is_the_largest_distance_from_the_running_median(tmp_path):
+    """Stage-2 PSNRs 30, 31, 30, 36 (stage 1 ignored): after the first 10 % (none of 4 lines), the running
+    medians are 30, 30.5, 30, 30.5, so the distances are 0, 0.5, 0, 5.5 -> 5.5 dB."""
+    import json
+
+    from bench.bench_suite import stage2_swing_db
+
+    lines = [{"stage": 1, "psnr": 10.0}] + [{"stage": 2, "psnr": p} for p in (30.0, 31.0, 30.0, 36.0)]
+    (tmp_path / "log.jsonl").write_text("\n".join(json.dumps(r) for r in lines) + "\n")
+    assert stage2_swing_db(tmp_path) == 5.5
