@@ -243,6 +243,11 @@ class SceneFields(nn.Module):
     def beta(self) -> Tensor:
         return self.log_beta.exp() + BETA_FLOOR
 
+    @torch.no_grad()
+    def cap_beta(self, cap: float) -> None:
+        """Bound beta above by ``cap`` (a schedule's step; never below the floor)."""
+        self.log_beta.clamp_(max=math.log(max(cap - BETA_FLOOR, 1e-12)))
+
     @property
     def intensity(self) -> Tensor:
         return self.log_intensity.exp()

@@ -94,6 +94,16 @@ def check_not_collapsed(fields: SceneFields, device) -> str | None:
 
 # ----------------------------------------------------------------------------- the loop
 
+BETA_START = 0.1
+BETA_CAP_END = 0.002
+
+
+def beta_cap(progress: float, anneal: float) -> float:
+    """The upper bound on beta at ``progress`` of the run: BETA_START -> BETA_CAP_END geometrically
+    over the first ``anneal`` of it, then BETA_CAP_END."""
+    return BETA_START * (BETA_CAP_END / BETA_START) ** min(max(progress, 0.0) / anneal, 1.0)
+
+
 def recent_psnr(recent: deque[tuple[float, float]]) -> float:
     """Train PSNR over the pixels of the last ``log_every`` steps (the logged figure): one step of
     stage 2 holds a few 4x4-pixel lattice patches, so a single step's PSNR swings by several dB
@@ -190,6 +200,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                 f"with learning rate x{state.lr_scale:g}")
             continue
         take_step(opts, terms.total)
+        if state.stage == 1 and cfg.beta_anneal > 0:
+            fields.cap_beta(beta_cap(progress_frac, cfg.beta_anneal))
         state.step += 1
         recent.append((terms.squared_error, terms.pixels))
         state.elapsed = time.time() - t_start

@@ -51,6 +51,9 @@ def add_parser(sub) -> None:
                    help="--sr gaussian (mc, antithetic): share of training, 0..0.85, that uses one PSF ray per LR "
                         "pixel and N_s times as many pixels per step before switching to N_s rays per pixel "
                         "(default 0 = off: at 600 s it measured no gain, bench/results/train_table.md)")
+    p.add_argument("--beta-anneal", type=float,
+                   help="share of the run, 0..0.9, over which an upper bound on VolSDF's beta falls from 0.1 to "
+                        "0.002 (0 = beta free, as the paper; default: auto 0.3, fast and paper 0)")
     p.add_argument("--refine-samples", type=int,
                    help="no-grad samples added, in both stages and at evaluation, inside the first interval of "
                         "each ray where the surface may lie (d + d' < spacing): parts thinner than the locating "
@@ -117,6 +120,10 @@ def build_config(scene, args):
         changes["psf_samples"] = 1
     if args.checkpoint_every is not None:
         changes["checkpoint_every"] = max(1, args.checkpoint_every)
+    if args.beta_anneal is not None:
+        if not (math.isfinite(args.beta_anneal) and 0.0 <= args.beta_anneal <= 0.9):
+            raise SrvolError(f"--beta-anneal {args.beta_anneal}: must be between 0 and 0.9")
+        changes["beta_anneal"] = args.beta_anneal
     if args.refine_samples is not None:
         if not 0 <= args.refine_samples <= 64:
             raise SrvolError(f"--refine-samples {args.refine_samples}: must be 0..64")

@@ -344,3 +344,38 @@ def test_refine_samples_reach_both_stages_and_are_said(default_scene):
     assert TrainConfig.from_json(cfg.to_json()) == cfg
     with pytest.raises(SrvolError, match="--refine-samples"):
         build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--refine-samples", "-1"]))
+
+
+def test_the_beta_cap_falls_geometrically_then_holds():
+    """0.1 at the start, 0.1 * (0.002 / 0.1)^0.5 = 0.01414 halfway through a 0.3 anneal, 0.002 from 0.3 on."""
+    from srvol.train import BETA_CAP_END, beta_cap
+
+    assert beta_cap(0.0, 0.3) == pytest.approx(0.1)
+    assert beta_cap(0.15, 0.3) == pytest.approx(0.1 * (0.002 / 0.1) ** 0.5)
+    assert beta_cap(0.3, 0.3) == beta_cap(0.9, 0.3) == pytest.approx(BETA_CAP_END)
+
+
+def test_capping_beta_bounds_it_and_leaves_a_lower_beta_alone():
+    f = SceneFields(fast_config().fields, learn_intensity=False)
+    f.cap_beta(0.05)
+    assert float(f.beta.detach()) == pytest.approx(0.05, rel=1e-5)
+    with torch.no_grad():
+        f.log_beta.fill_(math.log(0.001))
+    f.cap_beta(0.05)
+    assert float(f.beta.detach()) == pytest.approx(0.001 + 1e-4, rel=1e-5)  # below the cap: untouched
+
+
+def test_auto_caps_beta_and_the_flag_sets_it(default_scene):
+    import argparse
+
+    from srvol.train_cli import add_parser, build_config
+
+    scene = load_scene(default_scene)
+    assert auto_config(scene, "gaussian", 60.0).beta_anneal == 0.3 and fast_config().beta_anneal == 0.0
+    assert any("beta capped" in r for r in auto_config(scene, "gaussian", 60.0).reasons)
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--beta-anneal", "0"]))
+    assert cfg.beta_anneal == 0.0
+    with pytest.raises(SrvolError, match="--beta-anneal"):
+        build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--beta-anneal", "1.5"]))
