@@ -48,6 +48,10 @@ class PixelBatch:
         return torch.einsum("gpr,grc->gpc", self.weights, per_ray.reshape(G, R, -1)).reshape(G * P, -1)
 
 
+SILHOUETTE_MARGIN = 2
+"""LR pixels added around each view's mask bounding box for the out-of-mask rays drawn near the object."""
+
+
 class PixelBank:
     """All LR training pixels, split by the mask, with per-view camera tensors for batched rays."""
 
@@ -78,6 +82,21 @@ class PixelBank:
         self.view_start = torch.tensor(start[:-1], dtype=torch.long, device=device)
         self.inside = torch.nonzero(self.mask).squeeze(-1)
         self.outside = torch.nonzero(~self.mask).squeeze(-1)
+        self.outside_near = torch.nonzero(~self.mask & self._in_mask_box(SILHOUETTE_MARGIN)).squeeze(-1)
+
+    def _in_mask_box(self, margin: int) -> Tensor:
+        """Per pixel: inside its view's mask bounding box grown by ``margin`` LR pixels."""
+        near = torch.zeros_like(self.mask)
+        for k, (start, (H, W)) in enumerate(zip(self.view_start.tolist(), self.sizes.tolist())):
+            m = self.mask[start:start + H * W].reshape(H, W)
+            if not m.any():
+                continue
+            rows, cols = torch.nonzero(m.any(1)).squeeze(-1), torch.nonzero(m.any(0)).squeeze(-1)
+            box = torch.zeros(H, W, dtype=torch.bool, device=m.device)
+            box[max(0, int(rows[0]) - margin):int(rows[-1]) + margin + 1,
+                max(0, int(cols[0]) - margin):int(cols[-1]) + margin + 1] = True
+            near[start:start + H * W] = box.reshape(-1)
+        return near
 
     def rays(self, view: Tensor, uv: Tensor) -> Rays:
         """Rays of views ``view`` (P,) through continuous pixel coordinates ``uv`` (P, S, 2)."""
@@ -92,15 +111,24 @@ class PixelBank:
     def sample(self, n: int, inside: bool, psf: PsfSampler, psf_samples: int, generator: torch.Generator,
                antithetic: bool = False) -> PixelBatch:
         """n pixels (in or out of the mask), each estimated by its own ``psf_samples`` rays (groups
-        of one pixel)."""
-        pool = self.inside if inside else self.outside
-        pick = pool[torch.randint(len(pool), (n,), generator=generator).to(pool.device)]
+        of one pixel). Out of the mask, half come from the silhouette's bounding box (the gaps
+        between legs, under a seat, in a handle: where the shape is carved), half from anywhere."""
+        if inside:
+            pick = self._pick(self.inside, n, generator)
+        else:
+            near = n // 2 if len(self.outside_near) else 0
+            pick = torch.cat([self._pick(self.outside_near, near, generator),
+                              self._pick(self.outside, n - near, generator)])
         offsets = psf.offsets(n, psf_samples, generator=generator, antithetic=antithetic).to(self.device)
         uv = self.ij[pick][:, None, :] + 0.5 + offsets
         S = offsets.shape[1]
         weights = torch.full((n, 1, S), 1.0 / S, device=self.device)
         return PixelBatch(rays=self.rays(self.view[pick], uv), weights=weights, target=self.colour[pick],
                           mask=self.mask[pick].float())
+
+    @staticmethod
+    def _pick(pool: Tensor, n: int, generator: torch.Generator) -> Tensor:
+        return pool[torch.randint(len(pool), (n,), generator=generator).to(pool.device)]
 
     def sample_patches(self, n: int, patch: int, cell: float, psf: PsfSampler,
                        generator: torch.Generator) -> PixelBatch:

@@ -84,3 +84,29 @@ def test_lattice_patches_share_rays_among_their_pixels(default_scene):
         for p in range(P):
             i, j = best[p].tolist()
             assert np.allclose(batch.target[gi * P + p].numpy(), v.image[j, i])
+
+
+def test_half_the_out_of_mask_rays_come_from_around_the_silhouette(tmp_path):
+    """A 20x16 view whose mask is the block rows 6..9, cols 8..11: its bounding box grown by 2 pixels is
+    rows 4..11, cols 6..13 (64 pixels, 48 of them outside the mask). Of 200 out-of-mask pixels drawn,
+    half come from those 48, the rest from all 304 background pixels."""
+    from srvol.data import SceneInfo, View, load_scene, write_scene_folder
+    from srvol.pixels import SILHOUETTE_MARGIN
+    from srvol.types import Camera
+
+    assert SILHOUETTE_MARGIN == 2
+    K = torch.tensor([[20.0, 0, 10], [0, 20.0, 8], [0, 0, 1]], dtype=torch.float64)
+    cam = Camera.look_at([0, -3.0, 0], [0, 0, 0], [0, 0, 1], K, 20, 16)
+    mask = np.zeros((16, 20), bool)
+    mask[6:10, 8:12] = True
+    view = View(name="000", camera=cam, image=np.full((16, 20, 3), 0.5, np.float32), mask=mask)
+    write_scene_folder(tmp_path / "s", [view], SceneInfo(color_space="linear", light_intensity=(1.0, 1.0, 1.0)))
+    bank = PixelBank(load_scene(tmp_path / "s"), torch.device("cpu"))
+    assert len(bank.outside_near) == 64 - 16 and len(bank.outside) == 320 - 16
+    psf = PsfSampler(SRMode.NONE, GaussianPSF(0.375, 4))
+    batch = bank.sample(200, False, psf, 1, torch.Generator().manual_seed(0))
+    assert batch.mask.sum() == 0
+    ij = _landing(bank, load_scene(tmp_path / "s"), batch, 1).reshape(-1, 2).floor().long()
+    near = (ij[:, 1] >= 4) & (ij[:, 1] <= 11) & (ij[:, 0] >= 6) & (ij[:, 0] <= 13)
+    assert near[:100].all()  # the first half: from the grown box
+    assert 5 <= int(near[100:].sum()) <= 40  # the second: anywhere (48 / 304 of the background is near)
