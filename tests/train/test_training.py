@@ -302,14 +302,19 @@ def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_sc
 
 
 def test_stage2_traces_fewer_samples_per_ray_for_every_sr_mode(default_scene):
-    """Stage 2 freezes the surface, so auto (and fast) locate it with fewer samples there; the
-    choice is saved in config.json, and a config written before it existed reads as 'as stage 1'."""
+    """Stage 2 freezes the surface, so auto (and fast) locate it with fewer samples there (auto refines
+    the first possible crossing in both stages); the choice is saved in config.json, and a config
+    written before it existed reads as 'as stage 1'."""
+    from srvol.config import AUTO_REFINE
+
     scene = load_scene(default_scene)
     for sr in ("gaussian", "box", "none"):
         cfg = auto_config(scene, sr, 60.0)
-        assert sampler_of_stage(cfg, 1) == cfg.sampler and sampler_of_stage(cfg, 2) == STAGE2_SAMPLER
+        assert sampler_of_stage(cfg, 1) == cfg.sampler and cfg.sampler.n_refine == AUTO_REFINE
+        assert sampler_of_stage(cfg, 2) == replace(STAGE2_SAMPLER, n_refine=AUTO_REFINE)
         assert TrainConfig.from_json(cfg.to_json()) == cfg
-    assert "(stage 2: 16 locating + 4 gradient samples per ray)" in describe_ray_samples(cfg)
+    assert "(stage 2: 16 + 8 refining locating + 4 gradient samples per ray)" in describe_ray_samples(cfg)
+    assert sampler_of_stage(fast_config(), 2) == STAGE2_SAMPLER
     old = cfg.to_json()
     del old["stage2_sampler"]
     assert sampler_of_stage(TrainConfig.from_json(old), 2) == cfg.sampler
@@ -329,8 +334,8 @@ def test_the_logged_psnr_pools_the_pixels_of_the_last_steps():
 
 
 def test_refine_samples_reach_both_stages_and_are_said(default_scene):
-    """--refine-samples 8 adds 8 refining samples to the locating pass of stage 1 and stage 2, and
-    train's banner says so; out of range is one error line."""
+    """--refine-samples N sets the refining samples of the locating pass in stage 1 and stage 2 (0: off),
+    and train's banner says so; out of range is one error line."""
     import argparse
 
     from srvol.train_cli import add_parser, build_config
@@ -338,9 +343,12 @@ def test_refine_samples_reach_both_stages_and_are_said(default_scene):
     ap = argparse.ArgumentParser()
     add_parser(ap.add_subparsers())
     scene = load_scene(default_scene)
-    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--refine-samples", "8"]))
-    assert sampler_of_stage(cfg, 1).n_refine == sampler_of_stage(cfg, 2).n_refine == 8
-    assert "32 + 8 refining locating" in describe_ray_samples(cfg)
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--refine-samples", "0"]))
+    assert sampler_of_stage(cfg, 1).n_refine == sampler_of_stage(cfg, 2).n_refine == 0
+    assert describe_ray_samples(cfg).startswith("32 locating")
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--refine-samples", "12"]))
+    assert sampler_of_stage(cfg, 1).n_refine == sampler_of_stage(cfg, 2).n_refine == 12
+    assert describe_ray_samples(cfg).startswith("32 + 12 refining locating")
     assert TrainConfig.from_json(cfg.to_json()) == cfg
     with pytest.raises(SrvolError, match="--refine-samples"):
         build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--refine-samples", "-1"]))
