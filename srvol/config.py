@@ -73,6 +73,9 @@ class TrainConfig:
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
     beta_anneal: float = 0.0
+    silhouette_rays: float = 0.0
+    """Share of the out-of-mask rays drawn from each view's mask bounding box (+2 px), where the mask
+    carves gaps between legs or under a seat; the rest from anywhere outside the mask."""
     """Stage 1: VolSDF's beta is bounded above by a cap that falls geometrically from its start (0.1)
     to BETA_CAP_END over this share of the run (time or iterations), then stays there; 0 = no cap
     (the paper: beta free). Keeps a blurred density from being a way out when the shape is far from
@@ -127,11 +130,9 @@ stage-2 step takes 2.1x less time (bench/results/stage2_table.md)."""
 AUTO_STAGE2_FRACTION = 0.3
 """auto's share of the time budget for stage 2 (BRDF refinement on frozen geometry)."""
 
-AUTO_REFINE = 8
-"""auto: no-grad samples refining the first interval of each ray where the surface may lie."""
-
-AUTO_BETA_ANNEAL = 0.3
-"""auto: VolSDF's beta is capped by a schedule falling from 0.1 to 0.002 over this share of the run."""
+THIN_PARTS_RECIPE = ("--beta-anneal", "0.3", "--refine-samples", "8", "--silhouette-rays", "0.5")
+"""The flags that turned the stool scene from a fog into a stool (README); not auto's default yet: with
+them the default scene's stage 2 stalled (35.1 dB HR PSNR vs 37.8-38.2 at 600 s, 1 thread)."""
 
 
 def fast_config(sr: str = "gaussian", psf_samples: int = 4) -> TrainConfig:
@@ -232,12 +233,8 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     batch_stage2 = int(max(64, TrainConfig.batch_stage2 // ns))  # the paper's 700 rays per step
     fields = FieldConfig(kind="grid", sdf_levels=levels, mat_max_res=mat_max, mat_table_log2=table_log2,
                          sdf_hidden=hidden, mat_hidden=hidden)
-    stage1 = SamplerConfig(n_refine=AUTO_REFINE)
-    stage2 = replace(STAGE2_SAMPLER, n_refine=AUTO_REFINE)
-    reasons.append(f"{AUTO_REFINE} refining samples in the first interval of each ray where the surface may lie "
-                   "(d + d' < spacing), both stages: the locating samples are 0.06 apart (stage 2: 0.12), so parts "
-                   "thinner than that were missed on a third of the rays or more; on the stool scene (legs 0.08, "
-                   "crossbars 0.045 thick; 300 s) HR PSNR 30.87 -> 36.32 dB, normals 15.7 -> 11.7 deg")
+    stage1 = SamplerConfig()
+    stage2 = STAGE2_SAMPLER
     reasons.append(f"stage 2 (geometry frozen): {STAGE2_SAMPLER.n_coarse} locating + "
                    f"{STAGE2_SAMPLER.gradient_samples} gradient samples per ray (stage 1: {stage1.n_coarse} + "
                    f"{stage1.gradient_samples}): the surface no longer moves and beta is small, so a few samples "
@@ -251,12 +248,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                       psf_sampler="antithetic" if mode == SRMode.GAUSSIAN else "mc",
                       stage2_psf_sampler="lattice" if mode == SRMode.GAUSSIAN else "", patch=4, lattice_cell=cell,
                       batch_in=batch_in, batch_out=max(64, batch_in // 2), batch_stage2=batch_stage2,
-                      beta_anneal=AUTO_BETA_ANNEAL, time_budget=time_budget)
-    reasons.append(f"VolSDF beta capped by a schedule falling from 0.1 to 0.002 over the first "
-                   f"{AUTO_BETA_ANNEAL:.0%} of the run: left free, beta rose to 0.24 on the stool scene (thin legs, "
-                   "a hole under the seat: far from the initial sphere) and the model stayed a fog (train PSNR 30 dB "
-                   "at 300 s); capped, its silhouette formed within 400 steps; on the default scene beta falls below "
-                   "the cap by itself")
+                      time_budget=time_budget)
     reasons.append(f"{n_in} in-mask training pixels; {batch_in} per step x {ns} rays "
                    f"(stage 2: {rays_per_step(cfg, 2)} rays per step)")
     reasons.append(f"time budget {time_budget:.0f} s for both stages")

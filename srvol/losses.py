@@ -82,7 +82,7 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     rays = batch.rays
     use_mask = train_geo and bank.has_masks and len(bank.outside) > 0
     if use_mask:
-        out = bank.sample(cfg.batch_out, False, psf, 1, gen)
+        out = bank.sample(cfg.batch_out, False, psf, 1, gen, near_share=cfg.silhouette_rays)
         rays = Rays(torch.cat([rays.origins, out.rays.origins]), torch.cat([rays.directions, out.rays.directions]))
     light = PointLight(position=rays.origins, intensity=intensity)  # co-located: at each ray's camera
     n_pix_rays = batch.n_rays

@@ -109,14 +109,16 @@ class PixelBank:
         return Rays(origins=o.reshape(-1, 3), directions=d.reshape(-1, 3))
 
     def sample(self, n: int, inside: bool, psf: PsfSampler, psf_samples: int, generator: torch.Generator,
-               antithetic: bool = False) -> PixelBatch:
+               antithetic: bool = False, near_share: float = 0.0) -> PixelBatch:
         """n pixels (in or out of the mask), each estimated by its own ``psf_samples`` rays (groups
-        of one pixel). Out of the mask, half come from the silhouette's bounding box (the gaps
-        between legs, under a seat, in a handle: where the shape is carved), half from anywhere."""
+        of one pixel). Out of the mask, ``near_share`` of them come from the silhouette's bounding
+        box (the gaps between legs, under a seat, in a handle: where the shape is carved)."""
         if inside:
             pick = self._pick(self.inside, n, generator)
+        elif near_share <= 0 or not len(self.outside_near):
+            pick = self._pick(self.outside, n, generator)
         else:
-            near = n // 2 if len(self.outside_near) else 0
+            near = int(round(n * near_share))
             pick = torch.cat([self._pick(self.outside_near, near, generator),
                               self._pick(self.outside, n - near, generator)])
         offsets = psf.offsets(n, psf_samples, generator=generator, antithetic=antithetic).to(self.device)

@@ -53,11 +53,14 @@ def add_parser(sub) -> None:
                         "(default 0 = off: at 600 s it measured no gain, bench/results/train_table.md)")
     p.add_argument("--beta-anneal", type=float,
                    help="share of the run, 0..0.9, over which an upper bound on VolSDF's beta falls from 0.1 to "
-                        "0.002 (0 = beta free, as the paper; default: auto 0.3, fast and paper 0)")
+                        "0.002 (default 0: beta free, as the paper)")
+    p.add_argument("--silhouette-rays", type=float,
+                   help="share, 0..1, of the out-of-mask rays drawn from each view's mask bounding box (+2 px): "
+                        "where the mask carves gaps between thin parts (default 0: anywhere outside the mask)")
     p.add_argument("--refine-samples", type=int,
                    help="no-grad samples added, in both stages and at evaluation, inside the first interval of "
                         "each ray where the surface may lie (d + d' < spacing): parts thinner than the locating "
-                        "samples' spacing are found (default: by preset)")
+                        "samples' spacing are found (default 0)")
     p.add_argument("--capacity", type=float, default=1.0,
                    help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
                         "this factor -- for capacity studies (default 1: what the scene needs)")
@@ -124,6 +127,10 @@ def build_config(scene, args):
         if not (math.isfinite(args.beta_anneal) and 0.0 <= args.beta_anneal <= 0.9):
             raise SrvolError(f"--beta-anneal {args.beta_anneal}: must be between 0 and 0.9")
         changes["beta_anneal"] = args.beta_anneal
+    if args.silhouette_rays is not None:
+        if not (math.isfinite(args.silhouette_rays) and 0.0 <= args.silhouette_rays <= 1.0):
+            raise SrvolError(f"--silhouette-rays {args.silhouette_rays}: must be between 0 and 1")
+        changes["silhouette_rays"] = args.silhouette_rays
     if args.refine_samples is not None:
         if not 0 <= args.refine_samples <= 64:
             raise SrvolError(f"--refine-samples {args.refine_samples}: must be 0..64")

@@ -86,10 +86,10 @@ def test_lattice_patches_share_rays_among_their_pixels(default_scene):
             assert np.allclose(batch.target[gi * P + p].numpy(), v.image[j, i])
 
 
-def test_half_the_out_of_mask_rays_come_from_around_the_silhouette(tmp_path):
+def test_a_share_of_the_out_of_mask_rays_comes_from_around_the_silhouette(tmp_path):
     """A 20x16 view whose mask is the block rows 6..9, cols 8..11: its bounding box grown by 2 pixels is
     rows 4..11, cols 6..13 (64 pixels, 48 of them outside the mask). Of 200 out-of-mask pixels drawn,
-    half come from those 48, the rest from all 304 background pixels."""
+    with near_share 0.5 half come from those 48, the rest from all 304 background pixels."""
     from srvol.data import SceneInfo, View, load_scene, write_scene_folder
     from srvol.pixels import SILHOUETTE_MARGIN
     from srvol.types import Camera
@@ -104,7 +104,7 @@ def test_half_the_out_of_mask_rays_come_from_around_the_silhouette(tmp_path):
     bank = PixelBank(load_scene(tmp_path / "s"), torch.device("cpu"))
     assert len(bank.outside_near) == 64 - 16 and len(bank.outside) == 320 - 16
     psf = PsfSampler(SRMode.NONE, GaussianPSF(0.375, 4))
-    batch = bank.sample(200, False, psf, 1, torch.Generator().manual_seed(0))
+    batch = bank.sample(200, False, psf, 1, torch.Generator().manual_seed(0), near_share=0.5)
     assert batch.mask.sum() == 0
     ij = _landing(bank, load_scene(tmp_path / "s"), batch, 1).reshape(-1, 2).floor().long()
     near = (ij[:, 1] >= 4) & (ij[:, 1] <= 11) & (ij[:, 0] >= 6) & (ij[:, 0] <= 13)

@@ -302,18 +302,14 @@ def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_sc
 
 
 def test_stage2_traces_fewer_samples_per_ray_for_every_sr_mode(default_scene):
-    """Stage 2 freezes the surface, so auto (and fast) locate it with fewer samples there (auto refines
-    the first possible crossing in both stages); the choice is saved in config.json, and a config
-    written before it existed reads as 'as stage 1'."""
-    from srvol.config import AUTO_REFINE
-
+    """Stage 2 freezes the surface, so auto (and fast) locate it with fewer samples there; the choice
+    is saved in config.json, and a config written before it existed reads as 'as stage 1'."""
     scene = load_scene(default_scene)
     for sr in ("gaussian", "box", "none"):
         cfg = auto_config(scene, sr, 60.0)
-        assert sampler_of_stage(cfg, 1) == cfg.sampler and cfg.sampler.n_refine == AUTO_REFINE
-        assert sampler_of_stage(cfg, 2) == replace(STAGE2_SAMPLER, n_refine=AUTO_REFINE)
+        assert sampler_of_stage(cfg, 1) == cfg.sampler and sampler_of_stage(cfg, 2) == STAGE2_SAMPLER
         assert TrainConfig.from_json(cfg.to_json()) == cfg
-    assert "(stage 2: 16 + 8 refining locating + 4 gradient samples per ray)" in describe_ray_samples(cfg)
+    assert "(stage 2: 16 locating + 4 gradient samples per ray)" in describe_ray_samples(cfg)
     assert sampler_of_stage(fast_config(), 2) == STAGE2_SAMPLER
     old = cfg.to_json()
     del old["stage2_sampler"]
@@ -373,17 +369,21 @@ def test_capping_beta_bounds_it_and_leaves_a_lower_beta_alone():
     assert float(f.beta.detach()) == pytest.approx(0.001 + 1e-4, rel=1e-5)  # below the cap: untouched
 
 
-def test_auto_caps_beta_and_the_flag_sets_it(default_scene):
+def test_the_thin_parts_flags_are_off_by_default_and_set_by_the_cli(default_scene):
+    """--beta-anneal, --refine-samples and --silhouette-rays (the stool recipe, THIN_PARTS_RECIPE) are
+    off in every preset until they hold on the default scene; the flags set them; out of range is one line."""
     import argparse
 
+    from srvol.config import THIN_PARTS_RECIPE
     from srvol.train_cli import add_parser, build_config
 
     scene = load_scene(default_scene)
-    assert auto_config(scene, "gaussian", 60.0).beta_anneal == 0.3 and fast_config().beta_anneal == 0.0
-    assert any("beta capped" in r for r in auto_config(scene, "gaussian", 60.0).reasons)
+    auto = auto_config(scene, "gaussian", 60.0)
+    assert (auto.beta_anneal, auto.silhouette_rays, auto.sampler.n_refine) == (0.0, 0.0, 0)
     ap = argparse.ArgumentParser()
     add_parser(ap.add_subparsers())
-    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--beta-anneal", "0"]))
-    assert cfg.beta_anneal == 0.0
-    with pytest.raises(SrvolError, match="--beta-anneal"):
-        build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--beta-anneal", "1.5"]))
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *THIN_PARTS_RECIPE]))
+    assert (cfg.beta_anneal, cfg.silhouette_rays, sampler_of_stage(cfg, 2).n_refine) == (0.3, 0.5, 8)
+    for bad in (["--beta-anneal", "1.5"], ["--silhouette-rays", "2"]):
+        with pytest.raises(SrvolError, match=bad[0]):
+            build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *bad]))
