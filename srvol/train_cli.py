@@ -78,6 +78,13 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run_train)
 
 
+def _share(value: float, flag: str, most: float) -> float:
+    """A share of something, checked: finite and in [0, most]; one error line otherwise."""
+    if not (math.isfinite(value) and 0.0 <= value <= most):
+        raise SrvolError(f"{flag} {value}: must be between 0 and {most:g}")
+    return value
+
+
 def build_config(scene, args):
     from srvol.config import auto_config, fast_config, paper_config
 
@@ -112,25 +119,17 @@ def build_config(scene, args):
     if args.stage2_psf_sampler is not None:
         changes["stage2_psf_sampler"] = args.stage2_psf_sampler
     if args.stage2_fraction is not None:
-        if not (math.isfinite(args.stage2_fraction) and 0.0 <= args.stage2_fraction <= 0.9):
-            raise SrvolError(f"--stage2-fraction {args.stage2_fraction}: must be between 0 and 0.9")
-        changes["stage2_fraction"] = args.stage2_fraction
+        changes["stage2_fraction"] = _share(args.stage2_fraction, "--stage2-fraction", 0.9)
     if args.psf_warmup is not None:
-        if not (math.isfinite(args.psf_warmup) and 0.0 <= args.psf_warmup <= 0.85):
-            raise SrvolError(f"--psf-warmup {args.psf_warmup}: must be between 0 and 0.85")
-        changes["psf_warmup"] = args.psf_warmup
+        changes["psf_warmup"] = _share(args.psf_warmup, "--psf-warmup", 0.85)
     if args.sr == "none":
         changes["psf_samples"] = 1
     if args.checkpoint_every is not None:
         changes["checkpoint_every"] = max(1, args.checkpoint_every)
     if args.beta_anneal is not None:
-        if not (math.isfinite(args.beta_anneal) and 0.0 <= args.beta_anneal <= 0.9):
-            raise SrvolError(f"--beta-anneal {args.beta_anneal}: must be between 0 and 0.9")
-        changes["beta_anneal"] = args.beta_anneal
+        changes["beta_anneal"] = _share(args.beta_anneal, "--beta-anneal", 0.9)
     if args.silhouette_rays is not None:
-        if not (math.isfinite(args.silhouette_rays) and 0.0 <= args.silhouette_rays <= 1.0):
-            raise SrvolError(f"--silhouette-rays {args.silhouette_rays}: must be between 0 and 1")
-        changes["silhouette_rays"] = args.silhouette_rays
+        changes["silhouette_rays"] = _share(args.silhouette_rays, "--silhouette-rays", 1.0)
     if args.refine_samples is not None:
         if not 0 <= args.refine_samples <= 64:
             raise SrvolError(f"--refine-samples {args.refine_samples}: must be 0..64")
