@@ -156,10 +156,6 @@ def load_checkpoint(ckpt_dir: Path, fields) -> Checkpoint | None:
     return ck
 
 
-def has_checkpoint(ckpt_dir: Path) -> bool:
-    return (ckpt_dir / STATE_NAME).is_file() or (ckpt_dir / LEGACY_NAME).is_file()
-
-
 def save_snapshot(snap_dir: Path, fields, step: int, seconds: float) -> Path:
     """Fields at one moment of training: snapshots/<step>_<seconds>s.pt (state dict)."""
     snap_dir.mkdir(parents=True, exist_ok=True)
@@ -185,16 +181,12 @@ def load_model(run_dir: str | Path, device: str = "cpu", weights: str | Path | N
     model_path = Path(weights) if weights is not None else run_dir / "model.pt"
     fields = SceneFields(config.train.fields, learn_intensity=False)
     if model_path.is_file():
-        state = load_weights(model_path)
-    else:
-        read = _read_checkpoint(run_dir / "checkpoints")
-        if read is None:
-            raise SrvolError(f"{run_dir}: no model.pt or checkpoint (training not finished?)")
-        state = read[1].get("fields") if isinstance(read[1], dict) else None
-    try:
-        fields.load_state_dict(state)
-    except (KeyError, RuntimeError, TypeError, AttributeError) as e:
-        raise SrvolError(f"{model_path}: unreadable or mismatched model ({e.__class__.__name__})") from None
+        try:
+            fields.load_state_dict(load_weights(model_path))
+        except (KeyError, RuntimeError, TypeError, AttributeError) as e:
+            raise SrvolError(f"{model_path}: unreadable or mismatched model ({e.__class__.__name__})") from None
+    elif load_checkpoint(run_dir / "checkpoints", fields) is None:
+        raise SrvolError(f"{run_dir}: no model.pt or checkpoint (training not finished?)")
     fields = fields.to(device).eval()
     for p in fields.parameters():
         p.requires_grad_(False)

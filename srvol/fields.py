@@ -27,6 +27,8 @@ from torch import Tensor
 from srvol.types import ALPHA_MIN, SurfaceMaterial
 
 BETA_FLOOR = 1e-4
+BETA_INIT = 0.1
+"""VolSDF's beta at the start of training (DESIGN.md section 3)."""
 
 
 @dataclass(frozen=True)
@@ -219,7 +221,7 @@ class SceneFields(nn.Module):
     def __init__(self, cfg: FieldConfig, learn_intensity: bool, intensity_init: float = 10.0):
         super().__init__()
         self.cfg = cfg
-        self.log_beta = nn.Parameter(torch.tensor(math.log(0.1)))
+        self.log_beta = nn.Parameter(torch.tensor(math.log(BETA_INIT)))
         self.log_intensity = nn.Parameter(torch.full((3,), math.log(intensity_init)), requires_grad=learn_intensity)
         if cfg.kind == "paper":
             self.sdf_net = PaperSDF(cfg)

@@ -37,11 +37,6 @@ class LossTerms:
     squared_error: float
     pixels: float
 
-    @property
-    def psnr(self) -> float:
-        """This step's train PSNR (a few hundred pixels: noisy, see :func:`psnr_of`)."""
-        return psnr_of(self.squared_error, self.pixels)
-
 
 def psnr_of(squared_error: float, pixels: float) -> float:
     """PSNR of a summed per-pixel squared error over ``pixels`` pixels (signal peak 1)."""

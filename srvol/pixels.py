@@ -139,7 +139,7 @@ class PixelBank:
         if int(self.sizes.min()) < patch:
             raise SrvolError(f"--psf-sampler lattice: {patch}x{patch}-pixel patches need images at least "
                              f"{patch} pixels wide and high")
-        pick = self.inside[torch.randint(len(self.inside), (n,), generator=generator).to(self.device)]
+        pick = self._pick(self.inside, n, generator)
         view = self.view[pick]
         H, W = self.sizes[view, 0], self.sizes[view, 1]
         x0 = (self.ij[pick, 0] - patch // 2).clamp(min=0)

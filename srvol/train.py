@@ -19,7 +19,7 @@ from srvol.checkpoint import TrainState, load_checkpoint, save_checkpoint, save_
 from srvol.config import TrainConfig, rays_per_step
 from srvol.data import Scene
 from srvol.errors import SrvolError
-from srvol.fields import SceneFields
+from srvol.fields import BETA_INIT, SceneFields
 from srvol.losses import compute_loss, psnr_of
 from srvol.pixels import PixelBank
 from srvol.psf import PsfSampler, SRMode
@@ -94,14 +94,13 @@ def check_not_collapsed(fields: SceneFields, device) -> str | None:
 
 # ----------------------------------------------------------------------------- the loop
 
-BETA_START = 0.1
 BETA_CAP_END = 0.002
 
 
 def beta_cap(progress: float, anneal: float) -> float:
-    """The upper bound on beta at ``progress`` of the run: BETA_START -> BETA_CAP_END geometrically
-    over the first ``anneal`` of it, then BETA_CAP_END."""
-    return BETA_START * (BETA_CAP_END / BETA_START) ** min(max(progress, 0.0) / anneal, 1.0)
+    """The upper bound on beta at ``progress`` of the run: from its start (BETA_INIT) to BETA_CAP_END
+    geometrically over the first ``anneal`` of it, then BETA_CAP_END."""
+    return BETA_INIT * (BETA_CAP_END / BETA_INIT) ** min(max(progress, 0.0) / anneal, 1.0)
 
 
 def recent_psnr(recent: deque[tuple[float, float]]) -> float:
