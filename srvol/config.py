@@ -73,13 +73,13 @@ class TrainConfig:
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
     beta_anneal: float = 0.0
-    silhouette_rays: float = 0.0
-    """Share of the out-of-mask rays drawn from each view's mask bounding box (+2 px), where the mask
-    carves gaps between legs or under a seat; the rest from anywhere outside the mask."""
     """Stage 1: VolSDF's beta is bounded above by a cap that falls geometrically from its start (0.1)
     to BETA_CAP_END over this share of the run (time or iterations), then stays there; 0 = no cap
     (the paper: beta free). Keeps a blurred density from being a way out when the shape is far from
     the initial sphere."""
+    silhouette_rays: float = 0.0
+    """Share of the out-of-mask rays drawn from each view's mask bounding box (+2 px), where the mask
+    carves gaps between legs or under a seat; the rest from anywhere outside the mask."""
     iters: int = 0
     """Total iterations of both stages; 0 = run until ``time_budget``."""
     time_budget: float = 600.0
