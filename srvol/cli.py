@@ -226,13 +226,33 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bench(sub)
     for add in _optional_commands():
         add(sub)
+    _compose_export_edits(sub)
     return parser
+
+
+def _compose_export_edits(sub) -> None:
+    """``srvol export --material``: the exporter gets the relighter's edit as a callable on its maps."""
+    export = sub.choices.get("export")
+    if export is None:
+        return
+    from functools import partial
+
+    from srvol.export.cli import run_export
+
+    def texture_edit_for(specs):
+        from srvol.relight.edits import edit_textures, parse_material
+
+        edit = parse_material(specs)
+        return partial(edit_textures, edit=edit)
+
+    export.set_defaults(func=partial(run_export, texture_edit_for=texture_edit_for))
 
 
 def _optional_commands():
     """Commands contributed by the pipeline stages (each module exposes ``add_parser(sub)``)."""
     adders = []
-    for mod_name in ("srvol.train_cli", "srvol.export.cli", "srvol.relight.cli", "srvol.report"):
+    for mod_name in ("srvol.train_cli", "srvol.export.cli", "srvol.relight.cli", "srvol.relight.view",
+                     "srvol.report"):
         try:
             mod = __import__(mod_name, fromlist=["add_parser"])
         except ModuleNotFoundError as e:
