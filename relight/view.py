@@ -29,7 +29,7 @@ import numpy as np
 
 from srvol.errors import SrvolError
 from srvol.relight.render import RelitImage, render_scene
-from srvol.relight.sources import Source, default_camera, load_source
+from srvol.relight.sources import Source, load_source
 from srvol.relight.view_state import (PRESET_NAMES, MaterialControls, ViewerPose, ViewState, camera_from_pose,
                                       export_command, orbit_position, pose_from_camera, relight_command,
                                       render_size)
@@ -38,9 +38,12 @@ from srvol.types import Camera
 TICK_SECONDS = 0.05
 SETTLE_SECONDS = 0.3
 EXPORT_FORMATS = ("usd", "glb")
-DEFAULT_LIGHT = (-20.0, 40.0, 2.6)
-"""Initial light: azimuth, elevation (degrees), distance -- 40 degrees round from the initial camera
-(azimuth -60, elevation 20) and above it, so that it lights the side the camera sees."""
+START_CAMERA = (-60.0, 20.0, 4.0)
+"""Initial viewer camera: azimuth, elevation (degrees), distance -- the rig's default view (``relight``'s
+default camera) from further away, so that the light gizmo is in the picture too."""
+DEFAULT_LIGHT = (-100.0, 35.0, 2.0)
+"""Initial light: azimuth, elevation (degrees), distance -- 40 degrees to the camera's left and above
+it, so that it lights the side the camera sees (and shows left of the object, clear of the panel)."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,7 @@ class DisplayMesh:
     uv: np.ndarray | None = None
     albedo_srgb: np.ndarray | None = None
     vertex_colors: np.ndarray | None = None
+    normals: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------- what is shown
@@ -74,6 +78,10 @@ def to_srgb8(rgb: np.ndarray) -> np.ndarray:
     return (linear_to_srgb(rgb) * 255.0 + 0.5).astype(np.uint8)
 
 
+def describe(edit) -> str:
+    return "as baked" if edit.is_identity else edit.describe()
+
+
 def display_mesh(source: Source, source_path: Path) -> DisplayMesh:
     """An asset's own mesh and albedo map; a run's SDF meshed at 128^3, albedo field at the vertices."""
     if source.kind == "asset":
@@ -81,15 +89,16 @@ def display_mesh(source: Source, source_path: Path) -> DisplayMesh:
 
         asset = load_asset(source_path)
         return DisplayMesh(asset.mesh.vertices, asset.mesh.faces, uv=asset.mesh.uv,
-                           albedo_srgb=to_srgb8(asset.textures.albedo[..., :3]))
+                           albedo_srgb=to_srgb8(asset.textures.albedo[..., :3]), normals=asset.mesh.normals)
     import torch
 
     from srvol.export.extract import ExtractOptions, extract_mesh
 
-    mesh = extract_mesh(source.scene.sdf_fn, ExtractOptions(resolution=128, normals=False)).mesh
+    mesh = extract_mesh(source.scene.sdf_fn, ExtractOptions(resolution=128, normals=True)).mesh
     with torch.no_grad():
         albedo = source.scene.material_fn(torch.from_numpy(np.ascontiguousarray(mesh.vertices))).albedo
-    return DisplayMesh(mesh.vertices, mesh.faces, vertex_colors=to_srgb8(albedo.float().numpy()))
+    return DisplayMesh(mesh.vertices, mesh.faces, vertex_colors=to_srgb8(albedo.float().numpy()),
+                       normals=mesh.normals)
 
 
 def training_cameras(source: Source, scene_dir: Path | None) -> dict[str, Camera]:
@@ -107,6 +116,9 @@ def check_port_free(host: str, port: int) -> None:
     if not 1 <= port <= 65535:
         raise SrvolError(f"--port {port}: must be 1..65535")
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        # as the server binds (asyncio): a port left in TIME_WAIT by a closed connection is free,
+        # one that a process listens on is not
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind((host, port))
         except OSError as e:
@@ -152,12 +164,15 @@ class Viewer:
 
     # -- scene
     def _build_scene(self, mesh: DisplayMesh, cameras: dict[str, Camera]) -> None:
+        import torch
         import trimesh
         from PIL import Image
 
+        from srvol.camera_rig import rig_camera
+
         scene = self.server.scene
         scene.set_up_direction("+z")
-        tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+        tm = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_normals=mesh.normals, process=False)
         if mesh.albedo_srgb is not None and mesh.uv is not None:
             material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(mesh.albedo_srgb),
                                                            metallicFactor=0.0, roughnessFactor=1.0)
@@ -172,7 +187,8 @@ class Viewer:
             self._frustums.append(scene.add_camera_frustum(
                 f"/training_cameras/{name}", fov=pose.fov_y, aspect=pose.aspect, scale=0.12,
                 wxyz=pose.wxyz, position=pose.position, color=(60, 90, 200)))
-        start = default_camera(640, 480)
+        az, el, distance = START_CAMERA
+        start = rig_camera(torch.from_numpy(orbit_position(az, el, 1.0)), 640, 480, distance=distance)
         pose = pose_from_camera(start)
         self.default_pose = pose
         self.server.initial_camera.position = pose.position
@@ -269,12 +285,12 @@ class Viewer:
                 shown = (state, size)
                 continue
             seconds = time.perf_counter() - t0
-            with self._lock:
-                self.last_image, self.last_state, self.renders = image, state, self.renders + 1
             self.panel.image = to_srgb8(image.rgb)
             self.status.content = (f"{size[0]}x{size[1]}, {seconds:.2f} s, "
                                    f"{'embree' if self.source.kind == 'asset' else 'neural'} path, "
-                                   f"material: {state.material.edit().describe()}")
+                                   f"material: {describe(state.material.edit())}")
+            with self._lock:  # after the panel: a waiter sees the image it is told about
+                self.last_image, self.last_state, self.renders = image, state, self.renders + 1
             shown = (state, size)
 
     def wait_for_render(self, after: int = 0, timeout: float = 60.0) -> RelitImage:
@@ -336,7 +352,7 @@ class Viewer:
             export_fields(model.sdf, model.material, out,
                           ExportOptions(formats=EXPORT_FORMATS, hr_pixel_size=info.hr_pixel_size,
                                         sdf_cell=model.finest_sdf_cell()), texture_edit)
-        return (f"wrote {out} (material: {edit.describe()}); the same with srvol export:\n"
+        return (f"wrote {out} (material: {describe(edit)}); the same with srvol export:\n"
                 + export_command(self.source_path, edit, EXPORT_FORMATS, out))
 
     def stop(self) -> None:
