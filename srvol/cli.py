@@ -184,7 +184,7 @@ def _neural_relit_fn(fields):
 
 BENCHES = {"all": "bench.run_all", "synth": "bench.bench_synth", "train": "bench.bench_train",
            "stage2": "bench.bench_stage2", "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study",
-           "suite": "bench.bench_suite"}
+           "suite": "bench.bench_suite", "view": "bench.bench_view"}
 
 
 def _add_bench(sub) -> None:
@@ -194,7 +194,8 @@ def _add_bench(sub) -> None:
                                    "'all' (= make bench) takes about two hours on 2 cores. Arguments after the "
                                    "name go to the benchmark, e.g. `srvol bench study --budget 120 --only sweep`.")
     p.add_argument("which", nargs="?", default="all", choices=tuple(BENCHES),
-                   help="synth, train (SR vs noSR vs Vol-SR, paper), stage2 (stage-2 PSF samplers on the train runs), export, relight, study (N_s sweep, "
+                   help="synth, train (SR vs noSR vs Vol-SR, paper), stage2 (stage-2 PSF samplers on the train runs), export, relight, "
+                        "view (srvol view's render latency), study (N_s sweep, "
                         "stability, capacity), suite (every built-in scene, tuning and report sets; hours, "
                         "resumable; not part of 'all') or all (default)")
     p.add_argument("args", nargs=argparse.REMAINDER, help="passed on to the benchmark")
