@@ -161,3 +161,28 @@ def test_a_port_in_use_is_one_line_and_exit_2(asset, capsys):
         assert time.monotonic() - t0 < 30  # refused, not served on another port
     line = _one_error_line(capsys)
     assert line.startswith(f"srvol: error: --port {port}: cannot listen")
+
+
+def test_the_command_serves_the_page_and_stops_on_ctrl_c(asset, tmp_path):
+    """`srvol view ASSET --port P` as a user runs it: one line with the URL, the page is served
+    (viser's bundled client, no network), Ctrl-C (SIGINT) stops it with exit status 0."""
+    import signal
+    import sys
+
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "srvol", "view", str(asset), "--port", str(port),
+                             "--out", str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        line = ""
+        end = time.monotonic() + 120
+        while "srvol view:" not in line and time.monotonic() < end and proc.poll() is None:
+            line = proc.stdout.readline()
+        assert line.strip() == f"srvol view: asset:asset at http://localhost:{port}  (Ctrl-C stops)"
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as r:
+            assert r.status == 200 and b"<html" in r.read().lower()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-500:]
+    assert "srvol view: stopped" in out
