@@ -22,6 +22,7 @@ import json
 import socket
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -68,6 +69,14 @@ class DisplayMesh:
     albedo_srgb: np.ndarray | None = None
     vertex_colors: np.ndarray | None = None
     normals: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ShownRender:
+    """One image the panel showed: its (W, H) and the relighter's seconds."""
+
+    size: tuple[int, int]
+    seconds: float
 
 
 # ----------------------------------------------------------------------------- what is shown
@@ -131,7 +140,8 @@ def check_port_free(host: str, port: int) -> None:
 class Viewer:
     """A running ``srvol view``: the viser server, its scene and widgets, the render thread.
 
-    ``state()`` reads the widgets; ``panel`` holds the last rendered image; ``stop()`` ends it all.
+    ``state()`` reads the widgets; ``panel`` holds the last rendered image (``last_image``, ``last_state``;
+    ``recent``: the sizes and seconds of the last renders); ``stop()`` ends it all.
     """
 
     def __init__(self, source_path: Path, options: ViewOptions = ViewOptions()):
@@ -152,6 +162,7 @@ class Viewer:
         self.last_image: RelitImage | None = None
         self.last_state: ViewState | None = None
         self.renders = 0
+        self.recent: deque[ShownRender] = deque(maxlen=64)
         self._build_scene(mesh, cameras)
         self._build_gui()
         self._thread = threading.Thread(target=self._render_loop, name="srvol-view-render", daemon=True)
@@ -291,6 +302,7 @@ class Viewer:
                                    f"material: {describe(state.material.edit())}")
             with self._lock:  # after the panel: a waiter sees the image it is told about
                 self.last_image, self.last_state, self.renders = image, state, self.renders + 1
+                self.recent.append(ShownRender(size, seconds))
             shown = (state, size)
 
     def wait_for_render(self, after: int = 0, timeout: float = 60.0) -> RelitImage:

@@ -163,7 +163,9 @@ def build_report(run: Path, extra_dirs: list[Path], commands: list[str], asset: 
         parts.append("<h2>How good, how long</h2>" + "".join(f"<p>{html.escape(s)}</p>" for s in sentences))
     if (run / "eval_sheet.png").is_file():
         parts.append("<h2>Held-out views against the ground truth</h2>"
-                     "<p>Columns: ground truth | this model | difference (brighter = larger) | surface normals.</p>"
+                     "<p>A row per held-out view: ground truth | this model | difference x4 (brighter = larger) | "
+                     "normals, ours | normals, true | the low-resolution input. Then a row per moved light of the "
+                     "ground truth: truth | this model | difference.</p>"
                      + _img(run / "eval_sheet.png"))
 
     parts.append("<div class='diag'><h2>Diagnostics</h2>")
