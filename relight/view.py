@@ -197,7 +197,7 @@ class Viewer:
             pose = pose_from_camera(cam)
             self._frustums.append(scene.add_camera_frustum(
                 f"/training_cameras/{name}", fov=pose.fov_y, aspect=pose.aspect, scale=0.12,
-                wxyz=pose.wxyz, position=pose.position, color=(60, 90, 200)))
+                wxyz=pose.wxyz, position=pose.position, color=(60, 90, 200), thickness=0.004))
         az, el, distance = START_CAMERA
         start = rig_camera(torch.from_numpy(orbit_position(az, el, 1.0)), 640, 480, distance=distance)
         pose = pose_from_camera(start)
