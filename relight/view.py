@@ -241,6 +241,7 @@ class Viewer:
             f.visible = bool(self.show_cameras.value)
 
     def _report(self, action) -> None:
+        self.commands.content = "working ..."
         try:
             command = action()
         except SrvolError as e:

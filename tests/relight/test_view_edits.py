@@ -133,3 +133,28 @@ def test_save_render_prints_the_relight_command_that_renders_the_same_image(asse
     args[args.index("--out") + 1] = str(tmp_path / "again.exr")
     assert srvol_main(args) == 0
     np.testing.assert_array_equal(read_exr(tmp_path / "again.exr"), read_exr(saved))
+
+
+def test_export_of_fields_applies_the_edit_to_the_baked_maps(asset, tmp_path):
+    """A run's "export with edits" (and `srvol export RUN --material`): the edit reaches the baked maps."""
+    from functools import partial
+
+    from srvol.export.pipeline import ExportOptions, export_fields
+
+    from view_fixtures import ramp_material, sphere_sdf
+
+    out = tmp_path / "edited"
+    export_fields(sphere_sdf, ramp_material, out, ExportOptions(formats=("usd",), resolution=64, faces=1500,
+                                                                texture_size=128),
+                  texture_edit=partial(edit_textures, edit=parse_material(["roughness-scale=0.5"])))
+    np.testing.assert_allclose(load_asset(out).textures.alpha, load_asset(asset).textures.alpha / 4, rtol=1e-5)
+
+
+def test_export_of_an_asset_refuses_bad_specs_and_its_own_folder_in_one_line(asset, tmp_path, capsys):
+    assert srvol_main(["export", str(asset), "--material", "shiny", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("srvol: error: unknown material spec 'shiny'")
+    assert srvol_main(["export", str(asset), "--out", str(asset), "--force"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "would replace the asset it is made from" in err[0]
+    assert (asset / "asset.json").is_file() and not (tmp_path / "x").exists()
