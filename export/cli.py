@@ -3,8 +3,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Sequence
 
 from srvol.errors import SrvolError
+
+if TYPE_CHECKING:
+    from srvol.export.pipeline import TextureEdit
 
 BUILTIN_FIELDS = ("bumpy", "glossy")
 
@@ -29,7 +33,9 @@ def add_parser(sub) -> None:
         description="Narrow-band marching cubes -> decimation -> xatlas UVs -> baked textures (albedo, F0, "
                     "alpha and roughness = sqrt(alpha), optional normal map) -> the formats asked, plus the "
                     "lossless EXRs and asset.json that `srvol relight` reads.")
-    p.add_argument("run", nargs="?", type=Path, help="training run folder (config.json, model.pt)")
+    p.add_argument("run", nargs="?", type=Path, metavar="SOURCE",
+                   help="training run folder (config.json, model.pt), or an asset folder (asset.json): its mesh "
+                        "and lossless maps are written again, in the formats asked, with --material applied")
     p.add_argument("--builtin", choices=BUILTIN_FIELDS,
                    help="validation aid: export the exact analytic ground-truth fields of a built-in scene "
                         "instead of a trained run")
@@ -49,6 +55,9 @@ def add_parser(sub) -> None:
                    help="export even when the baked material is black everywhere (refused by default: "
                         "the sign of a collapsed run)")
     p.add_argument("--normal-map", action="store_true", help="also bake a tangent-space normal map")
+    p.add_argument("--material", action="append", default=[], metavar="SPEC",
+                   help="edit the baked maps, as `relight --material` renders them (e.g. roughness-scale=0.5, "
+                        "gold, albedo-tint=1,0.8,0.8); repeatable")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=run_export)
 
@@ -77,11 +86,26 @@ BUILTIN_HR_PIXEL_SIZE = 0.005
 """HR pixel footprint assumed for --builtin (the default synthetic scene's HR pixels at the object)."""
 
 
-def run_export(args) -> int:
-    from srvol.export.pipeline import ExportOptions, export_fields
+TextureEditFor = Callable[[Sequence[str]], "TextureEdit"]
+"""``--material`` specs -> a texture edit; the composition root (srvol.cli) hands it in, since the
+specs' meaning belongs to the relighter, which this package does not import."""
+
+
+def run_export(args, texture_edit_for: TextureEditFor | None = None) -> int:
+    from srvol.export.asset import is_asset_dir
+    from srvol.export.pipeline import ExportOptions, export_fields, reexport_asset
 
     if (args.run is None) == (args.builtin is None):
         raise SrvolError("export needs a training run folder or --builtin NAME (not both)")
+    texture_edit = None
+    if args.material:
+        if texture_edit_for is None:
+            raise SrvolError("--material needs srvol.relight (run `srvol export`, not this module)")
+        texture_edit = texture_edit_for(args.material)
+    if args.run is not None and is_asset_dir(args.run):
+        report = reexport_asset(args.run, args.out, _formats(args.format), texture_edit, args.force)
+        print(f"wrote {args.out} ({', '.join(report.files.values())}) from the asset {args.run}")
+        return 0
     if args.builtin is not None:
         sdf_fn, material_fn = _builtin_fields(args.builtin)
         hr, sdf_cell = BUILTIN_HR_PIXEL_SIZE, None
@@ -105,7 +129,7 @@ def run_export(args) -> int:
     opts = ExportOptions(formats=_formats(args.format), resolution=args.resolution, faces=args.faces,
                          texture_size=args.texture_size, normal_map=args.normal_map, hr_pixel_size=hr,
                          sdf_cell=sdf_cell, allow_dark=args.allow_dark, force=args.force)
-    report = export_fields(sdf_fn, material_fn, args.out, opts)
+    report = export_fields(sdf_fn, material_fn, args.out, opts, texture_edit)
     print(report.table())
     print(f"wrote {args.out}")
     return 0

@@ -11,6 +11,7 @@ import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -22,13 +23,16 @@ from srvol.export.bake import BakeOptions, auto_texture_size, bake
 from srvol.export.extract import ExtractOptions, auto_resolution, extract_mesh
 from srvol.export.simplify import SimplifyOptions, simplify
 from srvol.export.textures import specular_reference, write_textures
-from srvol.export.types import Mesh
+from srvol.export.types import Mesh, TextureSet
 from srvol.export.uv import unwrap
 from srvol.geometry import sdf_normals
 from srvol.types import MaterialFn, SdfFn
 
 FORMATS = ("usd", "usdc", "usdz", "gltf", "glb", "obj", "blend")
 ALL_FORMATS = ("usd", "usdz", "gltf", "glb", "obj", "blend")
+TextureEdit = Callable[[TextureSet], TextureSet]
+"""A material edit of baked maps (``srvol export --material``): handed in by the caller, so that
+the exporter applies what the relighter renders without importing it."""
 FILE_NAMES = {"usd": "model.usda", "usdc": "model.usdc", "usdz": "model.usdz", "gltf": "model.gltf",
               "glb": "model.glb", "obj": "model.obj", "blend": "model.blend"}
 
@@ -149,8 +153,9 @@ def _check_formats(formats: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
-                  options: ExportOptions = ExportOptions()) -> ExportReport:
-    """Write the asset folder ``out_dir`` from the two field callables; see module docstring."""
+                  options: ExportOptions = ExportOptions(), texture_edit: TextureEdit | None = None) -> ExportReport:
+    """Write the asset folder ``out_dir`` from the two field callables; see module docstring.
+    ``texture_edit`` (None: none) changes the baked maps before anything is written."""
     formats = _check_formats(options.formats)
     out_dir = Path(out_dir)
     report = ExportReport(out_dir=out_dir)
@@ -180,23 +185,49 @@ def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
             baked = bake(sdf_fn, material_fn, mesh, BakeOptions(texture_size=size, gutter=options.gutter,
                                                                 normal_map=options.normal_map))
         report.unfilled_fraction = baked.unfilled_fraction
+        textures = baked.textures if texture_edit is None else texture_edit(baked.textures)
         if not options.allow_dark:
-            check_not_dark(baked.textures)
-        with _Timer(report, "write"):
-            report.files = write_asset_files(tmp, mesh, baked.textures, formats)
-        if "blend" in formats:  # last, from the USD, by Blender in a subprocess (timed on its own)
-            from srvol.export.blender import write_blend
+            check_not_dark(textures)
+        _write_all(tmp, mesh, textures, formats, report, t_all, c_all)
+    return report
 
-            with _Timer(report, "blend"):
-                write_blend(tmp, tmp / FILE_NAMES["blend"], specular_reference(baked.textures))
-            report.files["blend"] = FILE_NAMES["blend"]
-        report.seconds["total"] = time.perf_counter() - t_all
-        report.cpu_seconds["total"] = time.process_time() - c_all
-        stats = report.to_json()
-        stats.pop("files")
-        stats.pop("out_dir")
-        _write_manifest(tmp, report.files, baked.textures.normal is not None, stats)
-        _make_readable(tmp)
+
+def _write_all(tmp: Path, mesh: Mesh, textures: TextureSet, formats: tuple[str, ...], report: ExportReport,
+               t_all: float, c_all: float) -> None:
+    """Files, .blend, manifest (with the report's stats) and permissions of an asset folder being built."""
+    with _Timer(report, "write"):
+        report.files = write_asset_files(tmp, mesh, textures, formats)
+    if "blend" in formats:  # last, from the USD, by Blender in a subprocess (timed on its own)
+        from srvol.export.blender import write_blend
+
+        with _Timer(report, "blend"):
+            write_blend(tmp, tmp / FILE_NAMES["blend"], specular_reference(textures))
+        report.files["blend"] = FILE_NAMES["blend"]
+    report.seconds["total"] = time.perf_counter() - t_all
+    report.cpu_seconds["total"] = time.process_time() - c_all
+    stats = report.to_json()
+    stats.pop("files")
+    stats.pop("out_dir")
+    _write_manifest(tmp, report.files, textures.normal is not None, stats)
+    _make_readable(tmp)
+
+
+def reexport_asset(src_dir: str | Path, out_dir: str | Path, formats: tuple[str, ...],
+                   texture_edit: TextureEdit | None = None, force: bool = False) -> ExportReport:
+    """A new asset folder from an existing one's mesh and lossless maps (no re-bake), with ``texture_edit``
+    applied to the maps; written atomically, through the same writers as :func:`export_fields`."""
+    from srvol.export.asset import load_asset
+
+    formats = _check_formats(formats)
+    src_dir, out_dir = Path(src_dir), Path(out_dir)
+    if out_dir.resolve() == src_dir.resolve():
+        raise SrvolError(f"{out_dir}: the output would replace the asset it is made from; choose another --out")
+    asset = load_asset(src_dir)
+    report = ExportReport(out_dir=out_dir, faces=len(asset.mesh.faces), texture_size=asset.textures.albedo.shape[0])
+    t_all, c_all = time.perf_counter(), time.process_time()
+    textures = asset.textures if texture_edit is None else texture_edit(asset.textures)
+    with AtomicFolder(out_dir, force) as tmp:
+        _write_all(tmp, asset.mesh, textures, formats, report, t_all, c_all)
     return report
 
 

@@ -16,6 +16,11 @@ preset, then albedo / albedo-texture, then roughness, then specular / no-specula
   lands on the north pole (+z).
 * ``roughness=x``      perceptual roughness r in [0, 1]; writes GGX alpha = r^2 (floored at ALPHA_MIN).
 * ``specular=x``       F0 (grey specular reflectance at normal incidence) in [0, 1].
+* ``roughness-scale=k`` multiplies the *perceptual* roughness r = sqrt(alpha) by k in [0, 4]
+  (r' = min(k r, 1), so alpha' = k^2 alpha, floored at ALPHA_MIN): what a roughness slider in Blender,
+  glTF or ``srvol view`` means. Applied after the specs above, to what they left.
+* ``specular-scale=k`` multiplies F0 by k in [0, 4] (clamped to [0, 1]).
+* ``albedo-tint=r,g,b`` multiplies the diffuse albedo per channel, each in [0, 4] (clamped to [0, 1]).
 
 **Gold, honestly.** Real gold's F0 is coloured, about (1.00, 0.71, 0.29) linear, and it has no
 diffuse lobe. srvol's BRDF has one grey F0 per point (``specular`` is (N, 1)), so a coloured
@@ -30,7 +35,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import torch
@@ -39,6 +44,9 @@ from torch import Tensor
 from srvol.errors import SrvolError
 from srvol.geometry import spherical_uv
 from srvol.types import ALPHA_MIN, SurfaceMaterial
+
+if TYPE_CHECKING:
+    from srvol.export.types import TextureSet
 
 GOLD_F0_RGB = (1.00, 0.71, 0.29)
 """Gold's specular reflectance at normal incidence, linear RGB (what a coloured-F0 BRDF would use)."""
@@ -57,7 +65,8 @@ class Preset:
 GOLD = Preset(name="gold", albedo=tuple(0.25 * c for c in GOLD_F0_RGB), specular=0.75, roughness=0.3)
 PRESETS = {"gold": GOLD}
 SPEC_HELP = ("gold | no-specular | albedo=r,g,b | albedo-texture=PNG | roughness=x (perceptual) | "
-             "specular=x (F0); combine with commas or repeat --material")
+             "specular=x (F0) | roughness-scale=k (scales perceptual r) | specular-scale=k | albedo-tint=r,g,b; "
+             "combine with commas or repeat --material")
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,6 +99,9 @@ class MaterialEdit:
     roughness: float | None = None
     specular: float | None = None
     no_specular: bool = False
+    roughness_scale: float = 1.0
+    specular_scale: float = 1.0
+    albedo_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     @property
     def is_identity(self) -> bool:
@@ -109,7 +121,24 @@ class MaterialEdit:
             parts.append(f"specular={self.specular:g}")
         if self.no_specular:
             parts.append("no-specular")
+        if self.roughness_scale != 1.0:
+            parts.append(f"roughness-scale={self.roughness_scale:g}")
+        if self.specular_scale != 1.0:
+            parts.append(f"specular-scale={self.specular_scale:g}")
+        if self.albedo_tint != (1.0, 1.0, 1.0):
+            parts.append("albedo-tint=" + ",".join(f"{c:g}" for c in self.albedo_tint))
         return ",".join(parts) or "as trained"
+
+    def spec(self) -> str:
+        """The ``--material`` value that parses back to this edit ("" for the identity); an
+        albedo texture is named by its path."""
+        if self.is_identity:
+            return ""
+        text = self.describe()
+        if self.albedo_texture is not None:
+            text = text.replace(f"albedo-texture={self.albedo_texture.path.name}",
+                                f"albedo-texture={self.albedo_texture.path}")
+        return text
 
     def apply(self, material: SurfaceMaterial, points: Tensor, uv: Tensor | None = None) -> SurfaceMaterial:
         """The edited material at ``points`` (N, 3) (scene frame); ``uv`` (N, 2) if the surface has UVs."""
@@ -131,6 +160,13 @@ class MaterialEdit:
             specular = torch.full((n, 1), self.specular, dtype=dt, device=dev)
         if self.no_specular:
             specular = torch.zeros((n, 1), dtype=dt, device=dev)
+        if self.roughness_scale != 1.0:  # on perceptual r: alpha' = (k sqrt(alpha))^2
+            r = (alpha.clamp_min(0).sqrt() * self.roughness_scale).clamp(max=1.0)
+            alpha = r.square().clamp_min(ALPHA_MIN)
+        if self.specular_scale != 1.0:
+            specular = (specular * self.specular_scale).clamp(0.0, 1.0)
+        if self.albedo_tint != (1.0, 1.0, 1.0):
+            albedo = (albedo * torch.tensor(self.albedo_tint, dtype=dt, device=dev)).clamp(0.0, 1.0)
         return SurfaceMaterial(albedo=albedo.contiguous(), specular=specular.contiguous(), alpha=alpha.contiguous())
 
 
@@ -170,6 +206,19 @@ def _unit_number(key: str, text: str) -> float:
     return x
 
 
+MAX_SCALE = 4.0
+
+
+def _scale_number(key: str, text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise SrvolError(f"material {key}={text}: not a number") from None
+    if not (math.isfinite(x) and 0.0 <= x <= MAX_SCALE):
+        raise SrvolError(f"material {key}={text}: must be in [0, {MAX_SCALE:g}]")
+    return x
+
+
 def _tokens(specs: Sequence[str]) -> list[str]:
     """Split specs on commas, re-attaching the bare numbers of ``albedo=r,g,b`` to their key."""
     out: list[str] = []
@@ -177,7 +226,7 @@ def _tokens(specs: Sequence[str]) -> list[str]:
         for part in (p.strip() for p in spec.split(",")):
             if not part:
                 continue
-            if out and "=" not in part and out[-1].startswith("albedo=") and _is_number(part):
+            if out and "=" not in part and out[-1].startswith(("albedo=", "albedo-tint=")) and _is_number(part):
                 out[-1] += "," + part
             else:
                 out.append(part)
@@ -218,6 +267,17 @@ def parse_material(specs: Sequence[str]) -> MaterialEdit:
             edit = replace(edit, roughness=_unit_number("roughness", value))
         elif key == "specular" and value:
             edit = replace(edit, specular=_unit_number("specular", value))
+        elif key == "roughness-scale" and value:
+            edit = replace(edit, roughness_scale=_scale_number(key, value))
+        elif key == "specular-scale" and value:
+            edit = replace(edit, specular_scale=_scale_number(key, value))
+        elif key == "albedo-tint" and value:
+            parts = value.split(",")
+            if len(parts) == 1:
+                parts = parts * 3
+            if len(parts) != 3:
+                raise SrvolError(f"material albedo-tint={value}: expected one or three numbers")
+            edit = replace(edit, albedo_tint=tuple(_scale_number(key, p) for p in parts))
         else:
             raise SrvolError(f"unknown material spec {tok!r} (expected {SPEC_HELP})")
     if edit.no_specular and edit.specular is not None:
@@ -225,3 +285,29 @@ def parse_material(specs: Sequence[str]) -> MaterialEdit:
     if edit.albedo is not None and edit.albedo_texture is not None:
         raise SrvolError("material: albedo=r,g,b contradicts albedo-texture=PNG (give one of them)")
     return edit
+
+
+def texel_uvs(height: int, width: int) -> Tensor:
+    """(H * W, 2) UVs of a texture's texel centres, row-major (origin bottom-left, row 0 = top)."""
+    v = 1.0 - (torch.arange(height, dtype=torch.float32) + 0.5) / height
+    u = (torch.arange(width, dtype=torch.float32) + 0.5) / width
+    V, U = torch.meshgrid(v, u, indexing="ij")
+    return torch.stack([U.reshape(-1), V.reshape(-1)], -1)
+
+
+def edit_textures(textures: TextureSet, edit: MaterialEdit) -> TextureSet:
+    """The asset's material maps with ``edit`` applied texel by texel (through :meth:`MaterialEdit.apply`,
+    so an edited asset shades exactly as the edited render did). Normal map and coverage are kept."""
+    from srvol.export.types import TextureSet
+
+    H, W = textures.albedo.shape[:2]
+    n = H * W
+
+    def flat(a: np.ndarray, c: int) -> Tensor:
+        return torch.from_numpy(np.ascontiguousarray(a[..., :c], np.float32)).reshape(n, c)
+
+    material = SurfaceMaterial(albedo=flat(textures.albedo, 3), specular=flat(textures.specular, 1),
+                               alpha=flat(textures.alpha, 1))
+    out = edit.apply(material, torch.zeros(n, 3), texel_uvs(H, W))
+    return TextureSet(albedo=out.albedo.reshape(H, W, 3).numpy(), specular=out.specular.reshape(H, W, 1).numpy(),
+                      alpha=out.alpha.reshape(H, W, 1).numpy(), normal=textures.normal, coverage=textures.coverage)

@@ -184,7 +184,7 @@ def _neural_relit_fn(fields):
 
 BENCHES = {"all": "bench.run_all", "synth": "bench.bench_synth", "train": "bench.bench_train",
            "stage2": "bench.bench_stage2", "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study",
-           "suite": "bench.bench_suite"}
+           "suite": "bench.bench_suite", "view": "bench.bench_view"}
 
 
 def _add_bench(sub) -> None:
@@ -194,7 +194,8 @@ def _add_bench(sub) -> None:
                                    "'all' (= make bench) takes about two hours on 2 cores. Arguments after the "
                                    "name go to the benchmark, e.g. `srvol bench study --budget 120 --only sweep`.")
     p.add_argument("which", nargs="?", default="all", choices=tuple(BENCHES),
-                   help="synth, train (SR vs noSR vs Vol-SR, paper), stage2 (stage-2 PSF samplers on the train runs), export, relight, study (N_s sweep, "
+                   help="synth, train (SR vs noSR vs Vol-SR, paper), stage2 (stage-2 PSF samplers on the train runs), export, relight, "
+                        "view (srvol view's render latency), study (N_s sweep, "
                         "stability, capacity), suite (every built-in scene, tuning and report sets; hours, "
                         "resumable; not part of 'all') or all (default)")
     p.add_argument("args", nargs=argparse.REMAINDER, help="passed on to the benchmark")
@@ -226,13 +227,33 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bench(sub)
     for add in _optional_commands():
         add(sub)
+    _compose_export_edits(sub)
     return parser
+
+
+def _compose_export_edits(sub) -> None:
+    """``srvol export --material``: the exporter gets the relighter's edit as a callable on its maps."""
+    export = sub.choices.get("export")
+    if export is None:
+        return
+    from functools import partial
+
+    from srvol.export.cli import run_export
+
+    def texture_edit_for(specs):
+        from srvol.relight.edits import edit_textures, parse_material
+
+        edit = parse_material(specs)
+        return partial(edit_textures, edit=edit)
+
+    export.set_defaults(func=partial(run_export, texture_edit_for=texture_edit_for))
 
 
 def _optional_commands():
     """Commands contributed by the pipeline stages (each module exposes ``add_parser(sub)``)."""
     adders = []
-    for mod_name in ("srvol.train_cli", "srvol.export.cli", "srvol.relight.cli", "srvol.report"):
+    for mod_name in ("srvol.train_cli", "srvol.export.cli", "srvol.relight.cli", "srvol.relight.view",
+                     "srvol.report"):
         try:
             mod = __import__(mod_name, fromlist=["add_parser"])
         except ModuleNotFoundError as e:

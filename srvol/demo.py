@@ -1,20 +1,46 @@
 """``make demo``: the whole pipeline on the bundled default scene, each step a printed command.
 
 synthesise the default scene -> ``auto`` training -> eval on held-out views -> export USD + GLB ->
-relight under three moved lights -> one HTML report. Everything lands in ``--out``.
+relight under three moved lights -> one HTML report -> the ``srvol view`` command to look at the
+asset live. Everything lands in ``--out``.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import shlex
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from srvol.cli import main as srvol
 from srvol.cli_parser import OneLineParser
 
-LIGHTS = ("1.6,-1.2,1.4", "-1.8,0.4,0.9", "0.3,1.9,-0.8")
+PREVIEW_LIGHTS = (("key", 35.0, 25.0), ("fill", -40.0, 10.0), ("top", -10.0, 55.0))
+"""The preview's lights, placed relative to the preview camera: (name, degrees to the camera's right
+(negative: left), degrees above it). All sit on the camera's side of the object, so each lights the
+side the camera sees; a light from behind would show a black silhouette."""
+LIGHT_DISTANCE = 2.2
+
+
+def lights_facing(camera_center, distance: float = LIGHT_DISTANCE,
+                  lights=PREVIEW_LIGHTS) -> list[tuple[str, tuple[float, float, float]]]:
+    """Light positions round the origin, turned from the camera's direction by each light's angles
+    (right about the world's +z, then up towards +z), at ``distance`` from the origin."""
+    d = np.asarray(camera_center, np.float64)
+    d = d / np.linalg.norm(d)
+    right = np.cross([0.0, 0.0, 1.0], d)  # the image's right, seen from the camera looking at the origin
+    right = right / max(np.linalg.norm(right), 1e-9)
+    up = np.cross(d, right)
+    out = []
+    for name, side_deg, up_deg in lights:
+        a, b = math.radians(side_deg), math.radians(up_deg)
+        horizontal = math.cos(a) * d + math.sin(a) * right
+        direction = math.cos(b) * horizontal + math.sin(b) * up
+        out.append((name, tuple(float(c) for c in distance * direction / np.linalg.norm(direction))))
+    return out
 
 
 def run_demo(out: Path, budget: float, eval_views: int) -> int:
@@ -38,17 +64,25 @@ def run_demo(out: Path, budget: float, eval_views: int) -> int:
     step("train", str(scene), "--out", str(run), "--time-budget", str(budget), "--force", "--snapshots", "0")
     from srvol.data import load_scene
 
-    views = load_scene(scene).test
+    loaded = load_scene(scene, load_images=False)
+    views = loaded.test
     step("eval", str(run), "--views", ",".join(views[:eval_views]))
     step("export", str(run), "--format", "usd,glb", "--out", str(asset), "--force")
-    for k, pos in enumerate(LIGHTS):
-        step("relight", str(run), "--light-pos", pos, "--view", views[0], "--out", str(relit / f"light{k}.png"),
-             "--force")
+    center = loaded.hr_camera(views[0]).center.double().numpy()
+    for k, (name, pos) in enumerate(lights_facing(center)):
+        step("relight", str(asset), "--light-pos", ",".join(f"{c:.3f}" for c in pos), "--view", views[0],
+             "--scene", str(scene), "--out", str(relit / f"light{k}_{name}.png"), "--force")
     (out / "commands.txt").write_text("\n".join(commands) + "\n")
-    step("report", str(run), "--out", str(out / "report.html"), "--include", str(relit),
+    step("report", str(run), "--out", str(out / "report.html"), "--asset", str(asset), "--previews", str(relit),
          "--include", str(scene), "--commands", str(out / "commands.txt"))
     print(f"\ndemo done: open {out / 'report.html'}")
+    print("look at the asset live in the browser (drag the light, edit the material):")
+    print(f"  {view_command(asset, scene)}")
     return 0
+
+
+def view_command(asset: Path, scene: Path) -> str:
+    return shlex.join(["srvol", "view", str(asset), "--scene", str(scene)])
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -73,3 +73,41 @@ def test_report_renders_in_headless_chromium(tmp_path):
     assert not_background.mean() > 0.05  # text + the image: a blank page is ~0
     colours = np.unique((img[not_background] * 15).round(), axis=0)
     assert len(colours) > 50  # the colour ramp came through, not just black text
+
+
+def _fake_asset(root: Path) -> Path:
+    asset = root / "asset"
+    (asset / "raw").mkdir(parents=True)
+    (asset / "asset.json").write_text(json.dumps({"format": "srvol-asset/1", "files": {"usd": "model.usda",
+                                                                                      "glb": "model.glb"},
+                                                  "stats": {"faces": 30000}}))
+    return asset
+
+
+def test_report_leads_with_the_asset_then_words_then_diagnostics(tmp_path):
+    run = _fake_run(tmp_path)
+    asset = _fake_asset(tmp_path)
+    previews = tmp_path / "relit"
+    previews.mkdir()
+    write_png(previews / "light0_key.png", np.full((8, 8, 3), 0.5, np.float32))
+    page = build_report(run, [], [], asset=asset, previews=previews, scene=tmp_path / "scene")
+    order = [page.index(s) for s in ("Your asset under moved lights", "light0_key", "Files written",
+                                     "How good, how long", "Held-out views against the ground truth",
+                                     "Diagnostics", "metrics.json")]
+    assert order == sorted(order)
+    assert f"srvol view {asset} --scene {tmp_path / 'scene'}" in page  # the live viewer, linked
+    assert "model.glb" in page and "File &gt; Import &gt; glTF 2.0" in page
+    # the headline in words a person reads: 597 s of training, 38.39 dB is "very good", 3.1 deg "very accurate"
+    assert "Training took 9 min 57 s (4732 steps)." in page
+    assert "38.4 dB PSNR: very good" in page
+    assert "off by 3.1 degrees on average (very accurate)" in page
+
+
+def test_headline_words_follow_the_bands():
+    from srvol.report import headline
+
+    assert headline({"psnr_hr": 41.0}, {})[0].endswith("excellent: side by side, differences are hard to find.")
+    assert "poor" in headline({"relit_psnr": 22.0}, {})[0]
+    assert "(rough in places)" in headline({"normal_mae_deg": 12.0}, {})[0]
+    assert headline({"dark_fraction": 0.9}, {})[-1].startswith("Warning: most renders are far darker")
+    assert headline({}, {}) == []
