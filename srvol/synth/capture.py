@@ -146,6 +146,17 @@ def flash_position(camera: Camera, offset) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- image formation
 
+def backdrop_pattern(q: torch.Tensor) -> torch.Tensor:
+    """(N,) relative albedo of the backdrop at unit directions ``q`` (N, 3): a grey photo texture
+    (scikit-image's gravel) wrapped once around the sphere, as a room or a cloth behind an object
+    has one. Once: a repeated pattern would show two places of the backdrop as one to SfM."""
+    from srvol.geometry import spherical_uv
+    from srvol.synth.assets import sample_texture, texture
+
+    uv = spherical_uv(q)
+    return 0.2 + 1.8 * sample_texture(texture("gravel"), uv[:, 0], 1 - uv[:, 1]).mean(-1)
+
+
 def backdrop_radiance(rays: Rays, flash: PointLight, radius: float, albedo: float, ambient: float) -> torch.Tensor:
     """(N, 3) radiance of a Lambertian backdrop sphere of ``radius`` about the origin, seen from inside:
     a faint pattern on a grey albedo, lit by the flash and the ambient light."""
@@ -158,9 +169,7 @@ def backdrop_radiance(rays: Rays, flash: PointLight, radius: float, albedo: floa
     to_l = flash.position.double() - p
     r2 = (to_l * to_l).sum(-1)
     cos = ((to_l / r2.sqrt()[:, None]) * n).sum(-1).clamp_min(0)
-    q = p / radius
-    pattern = 1 + 0.25 * torch.sin(7 * q[:, 0] + 2 * q[:, 1]) * torch.sin(5 * q[:, 2] + 3 * q[:, 1])
-    rho = albedo * pattern
+    rho = albedo * backdrop_pattern(p / radius)
     E = flash.intensity.double()[None, :] * (cos / r2)[:, None]
     return rho[:, None] * (E / math.pi + ambient)
 
