@@ -181,7 +181,7 @@ def _masks(reg: Registration, images: dict[str, np.ndarray], cams: dict[str, Cam
            res: dict[str, WorkingResolution], opts: ImportOptions) -> dict[str, np.ndarray]:
     if opts.masks is not None:
         return {n: masks_mod.read_given_mask(opts.masks, n, res[n]) for n in reg.cameras}
-    raw = {n: masks_mod.threshold_mask(images[n]) for n in reg.cameras}
+    raw = {n: masks_mod.threshold_mask(images[n], masks_mod.outside_bound(cams[n])) for n in reg.cameras}
     out = masks_mod.consistent_masks(raw, cams)
     empty = [n for n, m in out.items() if not m.any()]
     if empty:

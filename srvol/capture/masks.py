@@ -22,27 +22,49 @@ from srvol.types import Camera
 
 HULL_RESOLUTION = 64
 HULL_TOLERANCE = 0.1
+BACKGROUND_PERCENTILE = 99.0
 
 
-def threshold_mask(linear: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the bright (flash-lit) mode of a linear image (H, W, 3), cleaned."""
+def outside_bound(cam: Camera, radius: float = 1.0) -> np.ndarray:
+    """(H, W) bool: pixels whose ray misses the scene bound (the object cannot be there)."""
+    import torch
+
+    from srvol.geometry import ray_sphere
+
+    c = cam.to("cpu", torch.float64)
+    near, far = ray_sphere(c.rays_at(c.pixel_centers()), radius)
+    return (near >= far).reshape(cam.height, cam.width).numpy()
+
+
+def threshold_mask(linear: np.ndarray, background: np.ndarray | None = None,
+                   percentile: float = BACKGROUND_PERCENTILE) -> np.ndarray:
+    """(H, W) bool: the flash-lit object of a linear image (H, W, 3), cleaned.
+
+    With ``background`` ((H, W) bool, pixels known to be background: their rays miss the scene
+    bound) the threshold is the ``percentile`` of the background's luminance (the object is lit
+    more than nearly all the background); without, Otsu's threshold on log luminance.
+    """
     from skimage.filters import threshold_otsu
 
     lum = linear.mean(-1).astype(np.float64)
-    log = np.log(np.clip(lum, 0, None) + 1e-4)
-    mask = log > threshold_otsu(log)
+    if background is not None and background.sum() > 0.05 * background.size:
+        thr = float(np.percentile(lum[background], percentile))
+        mask = lum > thr
+    else:
+        log = np.log(np.clip(lum, 0, None) + 1e-4)
+        mask = log > threshold_otsu(log)
     return clean_mask(mask)
 
 
 def clean_mask(mask: np.ndarray, min_share: float = 0.05) -> np.ndarray:
-    """Opening (3x3), components smaller than ``min_share`` of the largest dropped, holes filled."""
-    m = ndimage.binary_opening(mask, structure=np.ones((3, 3)))
-    labels, n = ndimage.label(m)
+    """Specks (under 0.2 % of the image) and components smaller than ``min_share`` of the largest
+    dropped, holes filled."""
+    labels, n = ndimage.label(mask)
     if n == 0:
-        return m
-    areas = ndimage.sum(m, labels, index=np.arange(1, n + 1))
+        return mask
+    areas = ndimage.sum(mask, labels, index=np.arange(1, n + 1))
     keep = np.zeros(n + 1, bool)
-    keep[1:] = areas >= min_share * areas.max()
+    keep[1:] = (areas >= min_share * areas.max()) & (areas >= 0.002 * mask.size)
     return ndimage.binary_fill_holes(keep[labels])
 
 

@@ -50,11 +50,15 @@ def sfm_copy_size(width: int, height: int) -> tuple[int, int, float]:
 
 def write_sfm_image(path: Path, srgb: np.ndarray) -> None:
     """An 8-bit JPEG copy of an upright sRGB photo (H, W, 3) for SIFT: stretched so that its 0.5th
-    and 99.5th percentiles span the range, shrunk to :func:`sfm_copy_size`."""
+    and 99.5th percentiles span the range, then locally equalised (CLAHE: a dim background's texture
+    gives features too), shrunk to :func:`sfm_copy_size`."""
     from PIL import Image
+
+    from skimage.exposure import equalize_adapthist
 
     lo, hi = np.percentile(srgb, [0.5, 99.5])
     x = np.clip((srgb - lo) / max(hi - lo, 1e-3), 0, 1)
+    x = equalize_adapthist(x, clip_limit=0.02)
     im = Image.fromarray((x * 255 + 0.5).astype(np.uint8))
     w, h, f = sfm_copy_size(im.width, im.height)
     if f > 1:
@@ -102,11 +106,22 @@ def run_sfm(photos: list[PhotoInfo], image_dir: Path, work: Path, threads: int =
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = threads
     opts.random_seed = 0
+    # An object photographed against a far background: consecutive photos share few object
+    # features, and the background's look like a pure rotation. COLMAP's defaults (30 inliers to
+    # register a photo, 100 to start) left 12 of the 64 photos of the bunny capture out; these
+    # register all 64 (median rotation error 0.35 deg).
+    opts.mapper.abs_pose_min_num_inliers = 15
+    opts.mapper.init_min_num_inliers = 50
+    opts.min_num_matches = 10
     models = pycolmap.incremental_mapping(db, image_dir, work / "sparse", opts)
     if not models:
         raise SrvolError(f"structure from motion registered none of the {len(photos)} photos "
                          f"(too few matching features: more overlap between photos, more texture)")
     rec = max(models.values(), key=lambda r: r.num_reg_images())
+    if len(models) > 1:
+        sizes = sorted((r.num_reg_images() for r in models.values()), reverse=True)
+        notice(f"structure from motion made {len(models)} models ({', '.join(map(str, sizes))} photos): "
+               f"the largest is kept")
     (work / "sparse" / "largest").mkdir(parents=True, exist_ok=True)
     rec.write(work / "sparse" / "largest")
     return registration_from_reconstruction(rec, [p.name for p in photos], {p.name: p.size for p in photos}, "sfm")

@@ -77,7 +77,7 @@ class CaptureOptions:
     flash_offset: tuple[float, float, float] = (0.12, -0.03, 0.0)
     ambient: float = 0.01
     backdrop_radius: float = 6.0
-    backdrop_albedo: float = 0.35
+    backdrop_albedo: float = 0.2
     vignetting: tuple[float, float] = (-0.25, -0.05)
     exposure_target: float = 0.7
     noise: tuple[float, float] = (2e-4, 2e-5)
@@ -148,13 +148,22 @@ def flash_position(camera: Camera, offset) -> np.ndarray:
 
 def backdrop_pattern(q: torch.Tensor) -> torch.Tensor:
     """(N,) relative albedo of the backdrop at unit directions ``q`` (N, 3): a grey photo texture
-    (scikit-image's gravel) wrapped once around the sphere, as a room or a cloth behind an object
-    has one. Once: a repeated pattern would show two places of the backdrop as one to SfM."""
-    from srvol.geometry import spherical_uv
+    (scikit-image's gravel), as a room or a cloth behind an object has one, laid on the six faces
+    of a cube, each face a different part of the texture: a repeated pattern would show two
+    places of the backdrop as one to SfM, and a spherical mapping pinches at the poles."""
     from srvol.synth.assets import sample_texture, texture
 
-    uv = spherical_uv(q)
-    return 0.2 + 1.8 * sample_texture(texture("gravel"), uv[:, 0], 1 - uv[:, 1]).mean(-1)
+    axis = q.abs().argmax(-1)
+    sign = torch.gather(q, 1, axis[:, None])[:, 0] >= 0
+    face = 2 * axis + sign.long()  # 0..5
+    a = torch.gather(q, 1, ((axis + 1) % 3)[:, None])[:, 0]
+    b = torch.gather(q, 1, ((axis + 2) % 3)[:, None])[:, 0]
+    m = torch.gather(q.abs(), 1, axis[:, None])[:, 0].clamp_min(1e-9)
+    u0 = (face % 3).double() / 3
+    v0 = (face // 3).double() / 2
+    u = u0 + 0.15 * (a / m + 1)
+    v = v0 + 0.15 * (b / m + 1)
+    return 0.2 + 1.8 * sample_texture(texture("gravel"), u, v).mean(-1)
 
 
 def backdrop_radiance(rays: Rays, flash: PointLight, radius: float, albedo: float, ambient: float) -> torch.Tensor:
