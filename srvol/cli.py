@@ -39,6 +39,12 @@ def _add_synth(sub) -> None:
                    help=f"Gaussian PSF sigma in LR pixels (default: the scene's; {DEFAULT_SCENE} {d.psf_sigma})")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--sheet", action="store_true", help="also write sheet.png (LR | HR GT | normals | albedo | relit)")
+    p.add_argument("--capture", action="store_true",
+                   help="write what a phone gives instead: OUT/photos/*.jpg (EXIF focal, no poses or masks; "
+                        "hand-held path, off-lens flash, auto-exposure, vignetting, noise, ambient light, dim "
+                        "backdrop) and the ground truth apart in OUT/gt/ (for `srvol import` and `srvol eval --gt`)")
+    p.add_argument("--photos", type=int, help="with --capture: number of photos (default 64)")
+    p.add_argument("--photo-size", type=image_size, help="with --capture: photo size WxH (default 320x240)")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=_run_synth)
 
@@ -54,6 +60,10 @@ def _run_synth(args) -> int:
         return 0
     if args.out is None:
         raise SrvolError("synth needs --out DIR")
+    if args.capture:
+        return _run_synth_capture(args)
+    if args.photos is not None or args.photo_size is not None:
+        raise SrvolError("--photos and --photo-size go with --capture")
     given = {"lr": args.lr, "sr": args.sr, "views": args.views, "test_views": args.test_views,
              "psf_sigma": args.psf_sigma, "seed": args.seed}
     opts = replace(get_scene(args.name).synth, **{k: v for k, v in given.items() if v is not None})
@@ -63,6 +73,19 @@ def _run_synth(args) -> int:
 
         scene_sheet(out, out / "sheet.png")
     print(f"wrote {out}")
+    return 0
+
+
+def _run_synth_capture(args) -> int:
+    from dataclasses import replace
+
+    from srvol.synth.capture import CaptureOptions, synthesize_capture
+
+    given = {"photos": args.photos, "size": args.photo_size, "seed": args.seed}
+    opts = replace(CaptureOptions(), **{k: v for k, v in given.items() if v is not None})
+    out = synthesize_capture(args.name, args.out, opts, force=args.force)
+    print(f"wrote {out / 'photos'} ({opts.photos} photos, {opts.size[0]}x{opts.size[1]}) and its ground truth "
+          f"{out / 'gt'}")
     return 0
 
 
@@ -232,7 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _optional_commands():
     """Commands contributed by the pipeline stages (each module exposes ``add_parser(sub)``)."""
     adders = []
-    for mod_name in ("srvol.train_cli", "srvol.export.cli", "srvol.relight.cli", "srvol.report"):
+    for mod_name in ("srvol.train_cli", "srvol.capture.cli", "srvol.export.cli", "srvol.relight.cli", "srvol.report"):
         try:
             mod = __import__(mod_name, fromlist=["add_parser"])
         except ModuleNotFoundError as e:

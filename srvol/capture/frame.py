@@ -152,10 +152,15 @@ def visible_fraction(points: np.ndarray, cameras: list[Camera]) -> np.ndarray:
 
 def object_sphere_from_points(points: np.ndarray, cameras: list[Camera], min_fraction: float = 0.75) -> ObjectSphere:
     """The bounding sphere of the sparse points that at least ``min_fraction`` of the views frame
-    (the object, which every photo is aimed at; not the background, which each view sees a part of):
+    (the object, which every photo is aimed at; not the background, which each view sees a part of)
+    and that lie nearer to where the optical axes meet than 0.6 x the cameras' median distance from
+    there (a walk along a short arc frames the same patch of background in every photo):
     centre the middle of their robust bounding box, radius 1.1 x their 98th-percentile distance."""
     points = np.asarray(points, np.float64)
     frac = visible_fraction(points, cameras)
+    aim = object_sphere_from_cameras(cameras).center
+    reach = 0.6 * float(np.median([np.linalg.norm(c.center.double().numpy() - aim) for c in cameras]))
+    frac = np.where(np.linalg.norm(points - aim, axis=1) < reach, frac, 0.0)
     keep = frac >= min_fraction
     if keep.sum() < 20:  # few points: the best-seen fifth
         keep = frac >= np.quantile(frac, 0.8) if len(frac) else keep

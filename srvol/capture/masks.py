@@ -112,13 +112,18 @@ def hull_silhouette(hull: np.ndarray, cam: Camera, resolution: int = HULL_RESOLU
     return ndimage.binary_dilation(out, iterations=int(np.ceil(radius)) + 1)
 
 
-def consistent_masks(masks: dict[str, np.ndarray], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
-    """Each mask less what falls outside the visual hull's silhouette in its view, holes filled."""
+def consistent_masks(masks: dict[str, np.ndarray], cameras: dict[str, Camera],
+                     max_loss: float = 0.3) -> dict[str, np.ndarray]:
+    """Each mask less what falls outside the visual hull's silhouette in its view, holes filled.
+
+    Where that would remove more than ``max_loss`` of a mask, the hull is wrong for that view (the
+    object reaches past the scene bound, or a few views carved it), and the mask stays as it was.
+    """
     hull = visual_hull(masks, cameras)
     out = {}
     for name, m in masks.items():
-        sil = hull_silhouette(hull, cameras[name])
-        out[name] = clean_mask(m & sil) if sil.any() else m
+        cut = clean_mask(m & hull_silhouette(hull, cameras[name]))
+        out[name] = cut if cut.sum() >= (1 - max_loss) * m.sum() else m
     return out
 
 

@@ -71,6 +71,7 @@ def run_sfm(photos: list[PhotoInfo], image_dir: Path, work: Path, threads: int =
     import pycolmap
 
     pycolmap.logging.minloglevel = 2  # errors only; srvol prints its own progress
+    pycolmap.set_random_seed(0)
     db = work / "database.db"
     if db.exists():
         db.unlink()

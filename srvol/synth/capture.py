@@ -51,7 +51,8 @@ FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 
 @dataclass(frozen=True)
 class CaptureOptions:
-    """photos: number of photos; size: (W, H) of each photo; ss: render factor per photo side (each
+    """photos: number of photos; arc_deg: the walk's turn about the object (360: all around; a
+    smaller arc keeps a few photos as close together as many around); size: (W, H) of each photo; ss: render factor per photo side (each
     photo is rendered at ss x its size and blurred by the camera's Gaussian PSF of ``psf_sigma``
     photo pixels while decimated); test_views / relit_views / hr_factor: held-out GT views at
     hr_factor x the photo size; fill: the frame height the object's bounding sphere fills at the
@@ -64,6 +65,7 @@ class CaptureOptions:
     of the variance a x + b; jpeg_quality: of the written JPEGs."""
 
     photos: int = 64
+    arc_deg: float = 360.0
     size: tuple[int, int] = (320, 240)
     ss: int = 2
     psf_sigma: float = DEFAULT_SIGMA_LR_PX
@@ -93,6 +95,8 @@ class CaptureOptions:
             raise SrvolError(f"capture photos {self.photos}: need at least 3")
         if not 1 <= self.ss <= 8 or not 1 <= self.hr_factor <= 8:
             raise SrvolError("capture ss and hr_factor must be 1..8")
+        if not 0 < self.arc_deg <= 360:
+            raise SrvolError(f"capture arc {self.arc_deg} deg: must be in (0, 360]")
         if self.test_views < 1:
             raise SrvolError("capture test views must be >= 1")
 
@@ -124,7 +128,7 @@ def handheld_cameras(opts: CaptureOptions, n: int, rng: np.random.Generator, pha
     cams = []
     for k in range(n):
         u = (k + phase) / n
-        az = 2 * math.pi * u + rng.normal(0, 0.03)
+        az = math.radians(opts.arc_deg) * u + rng.normal(0, 0.03)
         el = math.radians(30 + 25 * math.sin(2 * math.pi * 2.5 * u + 0.7 * phase) + rng.normal(0, 2))
         dist = CAMERA_DISTANCE * (1 + opts.distance_jitter * (math.sin(2 * math.pi * 1.5 * u) + rng.normal(0, 0.4)))
         eye = dist * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
