@@ -10,7 +10,11 @@ the real commands in subprocesses (``srvol synth NAME --capture --out W/capture_
   the camera centres (imported vs GT; target median <= 0.5 deg);
 * mask_iou_mean / mask_iou_min: automatic masks vs the GT photo masks (target mean >= 0.95);
 * import_seconds: wall time of ``srvol import`` (target <= 120 s on 2 cores), import_cpu_seconds and
-  the command's peak memory (MiB).
+  the command's peak memory (MiB);
+* gt_mesh_to_points: the mean distance of the object's sparse points (capture frame) to the GT mesh
+  carried into the capture frame by the camera alignment and the recorded normalisation, in units of
+  the object's size: what ``srvol export --frame capture`` of a perfect model would measure (target
+  <= 1 %; a trained run's export is measured by ``srvol.capture.compare.asset_fit_to_points``).
 
 Writes bench/results/import_table.md and import_table.json.
 """
@@ -29,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.paths import REPO, write_result
-from srvol.capture.compare import align_cameras, gt_photo_cameras, mask_ious
+from srvol.capture.compare import (align_cameras, gt_mesh_in_capture_frame, gt_photo_cameras, mask_ious,
+                                   object_points, points_to_mesh)
 from srvol.data import read_cameras_json
 
 RESULTS = REPO / "bench" / "results"
@@ -51,6 +56,7 @@ class ImportRow:
     import_cpu_seconds: float
     import_peak_mib: float
     synth_seconds: float
+    gt_mesh_to_points: float
     command: str
 
 
@@ -90,7 +96,11 @@ def bench_scene(name: str, photos: int) -> ImportRow:
                      rotation_max_deg=round(max(al.rotation_deg.values()), 3),
                      mask_iou_mean=round(float(np.mean(ious)), 4), mask_iou_min=round(float(np.min(ious)), 4),
                      import_seconds=round(sec, 1), import_cpu_seconds=round(cpu, 1), import_peak_mib=round(peak),
-                     synth_seconds=round(synth_s, 1), command=" ".join(cmd))
+                     synth_seconds=round(synth_s, 1),
+                     gt_mesh_to_points=round(points_to_mesh(object_points(scene),
+                                                            gt_mesh_in_capture_frame(scene, capture / "gt",
+                                                                                     al.scene_to_gt)), 5),
+                     command=" ".join(cmd))
 
 
 def write_tables(rows: list[ImportRow]) -> None:

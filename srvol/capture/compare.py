@@ -84,3 +84,57 @@ def mask_ious(scene_dir: Path, gt_dir: Path) -> dict[str, float]:
         m = read_png(p, srgb=False)[..., 0] > 0.5
         out[p.stem] = mask_iou(m, gt_mask_at(gt_dir, p.stem, (m.shape[1], m.shape[0])))
     return out
+
+
+def points_to_mesh(points: np.ndarray, mesh, samples: int = 400_000) -> float:
+    """Mean distance of ``points`` (N, 3) to the surface of ``mesh`` (a trimesh), in units of the
+    mesh's bounding-box diagonal (the object's size). The surface is sampled densely (``samples``
+    points; their spacing, ~0.1 % of the size for an object like the bunny, bounds the error)."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    surface = trimesh.sample.sample_surface(mesh, samples, seed=0)[0]
+    dist = cKDTree(surface).query(np.asarray(points, np.float64))[0]
+    return float(np.mean(dist) / np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
+
+
+def object_points(scene_dir: Path) -> np.ndarray:
+    """(N, 3) the object's sparse points of an imported scene (capture frame)."""
+    import trimesh
+
+    path = Path(scene_dir) / "capture" / "object_points.ply"
+    if not path.is_file():
+        raise SrvolError(f"{path}: no object points (an import with sparse points writes them)")
+    return np.asarray(trimesh.load(path).vertices, np.float64)
+
+
+def asset_fit_to_points(asset_dir: Path, scene_dir: Path) -> float:
+    """How well an asset exported with ``--frame capture`` sits on the capture's sparse object points:
+    their mean distance to its mesh (model.obj, else the raw mesh mapped into the capture frame), in
+    units of the mesh's bounding-box diagonal."""
+    import trimesh
+
+    from srvol.capture.frame import read_normalization
+
+    obj = Path(asset_dir) / "model.obj"
+    if obj.is_file():
+        mesh = trimesh.load(obj, force="mesh", process=False)
+    else:
+        raw = np.load(Path(asset_dir) / "raw" / "mesh.npz")
+        norm = read_normalization(scene_dir)
+        if norm is None:
+            raise SrvolError(f"{scene_dir}: not an imported capture")
+        mesh = trimesh.Trimesh(norm.inverse().apply(raw["vertices"]), raw["faces"], process=False)
+    return points_to_mesh(object_points(scene_dir), mesh)
+
+
+def gt_mesh_in_capture_frame(scene_dir: Path, gt_dir: Path, scene_to_gt: Similarity):
+    """The GT mesh placed in an imported scene's capture frame: GT -> scene (the camera alignment's
+    inverse) -> capture (the normalisation's inverse). What a perfect export with --frame capture is."""
+    import trimesh
+
+    from srvol.capture.frame import read_normalization
+
+    mesh = trimesh.load(Path(gt_dir) / "mesh.ply", force="mesh", process=False)
+    to_capture = scene_to_gt.inverse().then(read_normalization(scene_dir).inverse())
+    return trimesh.Trimesh(to_capture.apply(mesh.vertices), mesh.faces, process=False)

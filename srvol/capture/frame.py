@@ -134,6 +134,7 @@ class ObjectSphere:
     center: np.ndarray
     radius: float
     points_used: int
+    points: np.ndarray | None = None  # (points_used, 3) the object's sparse points, when there were any
 
 
 def visible_fraction(points: np.ndarray, cameras: list[Camera]) -> np.ndarray:
@@ -170,7 +171,7 @@ def object_sphere_from_points(points: np.ndarray, cameras: list[Camera], min_fra
     lo, hi = np.percentile(p, 1, axis=0), np.percentile(p, 99, axis=0)
     center = (lo + hi) / 2
     radius = 1.1 * float(np.percentile(np.linalg.norm(p - center, axis=1), 98))
-    return ObjectSphere(center=center, radius=radius, points_used=int(keep.sum()))
+    return ObjectSphere(center=center, radius=radius, points_used=int(keep.sum()), points=p)
 
 
 def object_sphere_from_cameras(cameras: list[Camera]) -> ObjectSphere:

@@ -3,7 +3,9 @@
 read (upright, linear, working resolution; SfM copies) -> poses (pycolmap, or --colmap / --transforms)
 -> normalisation (object sphere from the sparse points most views see -> unit sphere, up -> +z)
 -> masks (automatic, or --masks) -> scene (image/*.exr linear, mask/*.png, cameras.json, scene.json
-with the PSF sigma of the decimation and the normalisation; capture/points.ply, capture/import.json).
+with the PSF sigma of the decimation and the normalisation; capture/points.ply: the sparse points,
+capture/object_points.ply: those the object's sphere came from, both in the capture frame;
+capture/sparse/largest: the COLMAP model; capture/import.json: what the import did).
 """
 from __future__ import annotations
 
@@ -107,6 +109,8 @@ def import_capture(photos_dir: Path, out: Path, opts: ImportOptions = ImportOpti
         scene_json = {**info.to_json(), "normalization": sim.to_json()}
         atomic_write_text(tmp / "scene.json", json.dumps(scene_json, indent=1))
         _write_points(work / "points.ply", reg.points)
+        if sphere.points is not None:
+            _write_points(work / "object_points.ply", sphere.points)
         _drop_sfm_scratch(work)
         seconds["total"] = time.time() - t0
         r0 = res[photos[0].name]

@@ -26,6 +26,11 @@ from srvol.types import Camera
 EXHAUSTIVE_MAX = 150
 """Up to this many photos every pair is matched; beyond, each photo with its 20 neighbours in name order."""
 
+MIN_TRACK = 3
+MAX_POINT_ERROR_PX = 1.0
+"""Sparse points kept: seen in at least MIN_TRACK photos, mean reprojection error at most this (COLMAP's
+usual filter for a model's reliable points)."""
+
 SFM_MAX_SIDE = 1600
 """The SfM copies' longest side (COLMAP's own default is 3200; the keypoints are scaled back)."""
 
@@ -156,7 +161,8 @@ def registration_from_reconstruction(rec, names: list[str], sizes: dict[str, tup
         cams[name] = Camera(K=torch.from_numpy(K), W2C=torch.from_numpy(W2C), width=W, height=H)
     if distorted:
         notice(f"camera model(s) {', '.join(sorted(distorted))} read without their distortion terms")
-    pts = np.array([p.xyz for p in rec.points3D.values()], np.float64).reshape(-1, 3)
+    pts = np.array([p.xyz for p in rec.points3D.values()
+                    if p.track.length() >= MIN_TRACK and p.error <= MAX_POINT_ERROR_PX], np.float64).reshape(-1, 3)
     unreg = tuple(n for n in names if n not in cams)
     return Registration(cameras={n: cams[n] for n in names if n in cams}, points=pts, unregistered=unreg,
                         source=source)
