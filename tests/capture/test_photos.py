@@ -96,3 +96,11 @@ def test_duplicate_stems_are_refused(tmp_path):
     Image.fromarray(pattern()).save(tmp_path / "a.png")
     with pytest.raises(SrvolError, match="two photos named 'a'"):
         list_photos(tmp_path)
+
+
+def test_photos_needing_different_decimations_are_refused_by_name(tmp_path, capsys):
+    Image.fromarray(pattern(240, 320)).save(tmp_path / "small.jpg")
+    Image.fromarray(pattern(480, 640)).save(tmp_path / "large.jpg")
+    assert main(["import", str(tmp_path), "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("srvol: error: photos of different sizes") and "large.jpg" in err and "small.jpg" in err
