@@ -76,7 +76,7 @@ def run_sfm(photos: list[PhotoInfo], image_dir: Path, work: Path, threads: int =
     """Register ``photos`` whose SfM copies are ``image_dir/<name>.jpg``; COLMAP's files go to ``work``."""
     import pycolmap
 
-    pycolmap.logging.minloglevel = 2  # errors only; srvol prints its own progress
+    pycolmap.logging.minloglevel = 3  # fatal only: srvol prints its own progress and one-line errors
     pycolmap.set_random_seed(0)
     db = work / "database.db"
     if db.exists():
