@@ -58,6 +58,10 @@ def add_parser(sub) -> None:
     p.add_argument("--material", action="append", default=[], metavar="SPEC",
                    help="edit the baked maps, as `relight --material` renders them (e.g. roughness-scale=0.5, "
                         "gold, albedo-tint=1,0.8,0.8); repeatable")
+    p.add_argument("--frame", choices=("scene", "capture"), default="scene",
+                   help="frame of the USD / glTF / OBJ / .blend mesh: scene (the unit sphere, default) or capture "
+                        "(an imported capture's own frame and units, by the normalisation its scene.json "
+                        "records; the raw mesh for `relight` stays in the scene frame)")
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=run_export)
 
@@ -84,6 +88,19 @@ def _builtin_fields(name: str):
 
 BUILTIN_HR_PIXEL_SIZE = 0.005
 """HR pixel footprint assumed for --builtin (the default synthetic scene's HR pixels at the object)."""
+
+
+def _capture_frame(scene_dir):
+    """scene -> capture similarity of the imported scene a run was trained on (one-line errors)."""
+    from srvol.capture.frame import read_normalization
+
+    if scene_dir is None:
+        raise SrvolError("--frame capture needs a run trained on an imported scene (srvol import)")
+    norm = read_normalization(Path(scene_dir))
+    if norm is None:
+        raise SrvolError(f"{scene_dir}: not an imported capture (scene.json has no normalization): "
+                         f"--frame capture needs one")
+    return norm.inverse()
 
 
 TextureEditFor = Callable[[Sequence[str]], "TextureEdit"]
@@ -126,7 +143,10 @@ def run_export(args, texture_edit_for: TextureEditFor | None = None) -> int:
         sdf_cell = model.finest_sdf_cell()
     if args.hr_pixel_size is not None:
         hr = args.hr_pixel_size
-    opts = ExportOptions(formats=_formats(args.format), resolution=args.resolution, faces=args.faces,
+    to_frame = None
+    if args.frame == "capture":
+        to_frame = _capture_frame(info.scene_dir if args.run is not None else None)
+    opts = ExportOptions(to_frame=to_frame, frame_name=args.frame, formats=_formats(args.format), resolution=args.resolution, faces=args.faces,
                          texture_size=args.texture_size, normal_map=args.normal_map, hr_pixel_size=hr,
                          sdf_cell=sdf_cell, allow_dark=args.allow_dark, force=args.force)
     report = export_fields(sdf_fn, material_fn, args.out, opts, texture_edit)

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from srvol.atomic import AtomicFolder, atomic_write_text
+from srvol.capture.frame import Similarity
 from srvol.errors import SrvolError
 from srvol.export.asset import ASSET_FORMAT
 from srvol.export.bake import BakeOptions, auto_texture_size, bake
@@ -57,6 +58,11 @@ class ExportOptions:
     allow_dark: bool = False
     gutter: int = 8
     force: bool = False
+    to_frame: Similarity | None = None
+    frame_name: str = "scene"
+    """to_frame: the USD / glTF / OBJ / .blend meshes are written in another frame, x -> s R x + t
+    (``srvol export --frame capture``: an imported capture's own frame and units); the raw mesh and
+    EXRs that srvol's relighter reads stay in the scene frame; asset.json records both."""
 
 
 @dataclass
@@ -188,15 +194,17 @@ def export_fields(sdf_fn: SdfFn, material_fn: MaterialFn, out_dir: str | Path,
         textures = baked.textures if texture_edit is None else texture_edit(baked.textures)
         if not options.allow_dark:
             check_not_dark(textures)
-        _write_all(tmp, mesh, textures, formats, report, t_all, c_all)
+        _write_all(tmp, mesh, textures, formats, report, t_all, c_all, options)
     return report
 
 
 def _write_all(tmp: Path, mesh: Mesh, textures: TextureSet, formats: tuple[str, ...], report: ExportReport,
-               t_all: float, c_all: float) -> None:
-    """Files, .blend, manifest (with the report's stats) and permissions of an asset folder being built."""
+               t_all: float, c_all: float, options: ExportOptions | None = None) -> None:
+    """Files, .blend, manifest (with the report's stats) and permissions of an asset folder being built;
+    with ``options.to_frame`` the formats get the mesh in that frame (the raw mesh stays in the scene's)."""
+    to_frame = options.to_frame if options is not None else None
     with _Timer(report, "write"):
-        report.files = write_asset_files(tmp, mesh, textures, formats)
+        report.files = write_asset_files(tmp, mesh, textures, formats, mesh_in_frame(mesh, to_frame))
     if "blend" in formats:  # last, from the USD, by Blender in a subprocess (timed on its own)
         from srvol.export.blender import write_blend
 
@@ -208,6 +216,8 @@ def _write_all(tmp: Path, mesh: Mesh, textures: TextureSet, formats: tuple[str, 
     stats = report.to_json()
     stats.pop("files")
     stats.pop("out_dir")
+    if to_frame is not None:
+        stats["frame"] = {"name": options.frame_name, "scene_to_frame": to_frame.to_json(), "raw_mesh": "scene frame"}
     _write_manifest(tmp, report.files, textures.normal is not None, stats)
     _make_readable(tmp)
 
@@ -238,9 +248,20 @@ def _make_readable(root: Path) -> None:
         p.chmod(0o755 if p.is_dir() else 0o644)
 
 
-def write_asset_files(root: Path, mesh: Mesh, textures, formats: tuple[str, ...]) -> dict[str, str]:
+def mesh_in_frame(mesh: Mesh, to_frame: Similarity | None) -> Mesh:
+    """``mesh`` with its vertices mapped by ``to_frame`` and its normals rotated (itself if None)."""
+    if to_frame is None:
+        return mesh
+    normals = None if mesh.normals is None else (mesh.normals.astype(np.float64) @ to_frame.rotation.T).astype(np.float32)
+    return Mesh(vertices=to_frame.apply(mesh.vertices).astype(np.float32), faces=mesh.faces, uv=mesh.uv,
+                normals=normals)
+
+
+def write_asset_files(root: Path, mesh: Mesh, textures, formats: tuple[str, ...],
+                      frame_mesh: Mesh | None = None) -> dict[str, str]:
     """raw/mesh.npz, raw/*.exr, textures/*.png and the asked formats under ``root`` (all but
-    .blend, which Blender writes from the USD: see export_fields)."""
+    .blend, which Blender writes from the USD: see export_fields). The formats get ``frame_mesh``
+    where given (the same mesh in another frame), raw/mesh.npz always ``mesh``."""
     from srvol.export.gltf import write_glb, write_gltf
     from srvol.export.obj import write_obj
     from srvol.export.usd import write_usd, write_usdz
@@ -251,6 +272,7 @@ def write_asset_files(root: Path, mesh: Mesh, textures, formats: tuple[str, ...]
     tex = write_textures(root, textures)
     files: dict[str, str] = {}
     f0_ref = specular_reference(textures)
+    mesh = frame_mesh if frame_mesh is not None else mesh
     for fmt in formats:
         path = root / FILE_NAMES[fmt]
         if fmt in ("usd", "usdc"):

@@ -159,8 +159,12 @@ def bicubic_reference(scene: Scene, views: list[str] | None = None) -> dict:
     return {k: float(np.mean([m[k] for m in per_view])) for k in per_view[0]}
 
 
-def chamfer_to_gt(fields, mesh_path: Path, resolution: int = 128, n_points: int = 30000) -> float:
-    """Chamfer distance between the zero level set (marching cubes) and the GT mesh, in bbox diagonals."""
+def chamfer_to_gt(fields, mesh_path: Path, resolution: int = 128, n_points: int = 30000,
+                  to_gt: Callable[[np.ndarray], np.ndarray] | None = None) -> float:
+    """Chamfer distance between the zero level set (marching cubes) and the GT mesh, in bbox diagonals.
+
+    ``to_gt`` maps the level set's vertices (N, 3) into the GT mesh's frame (an imported capture's
+    scene frame differs from its GT's; ``srvol.capture.evaluate``)."""
     import trimesh
     from skimage.measure import marching_cubes
 
@@ -173,7 +177,8 @@ def chamfer_to_gt(fields, mesh_path: Path, resolution: int = 128, n_points: int 
         raise SrvolError("the SDF has no surface inside the unit sphere")
     step = 2.0 / (resolution - 1)
     v, f, _, _ = marching_cubes(vol, 0.0, spacing=(step,) * 3)
-    ours = trimesh.Trimesh(v - 1.0, f, process=False)
+    v = v - 1.0
+    ours = trimesh.Trimesh(to_gt(v) if to_gt is not None else v, f, process=False)
     gt = trimesh.load(mesh_path, force="mesh")
     rng = np.random.default_rng(0)
     a = trimesh.sample.sample_surface(ours, n_points, seed=rng)[0]
