@@ -3,6 +3,9 @@ export tests need no training."""
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
+from pathlib import Path
 
 import pytest
 import torch
@@ -38,3 +41,23 @@ def default_scene(tmp_path_factory):
     synthesize("bumpy", out, SynthOptions(lr=(40, 30), views=12, test_views=2, relit_views=1, ss=1),
                progress=False)
     return out
+
+
+GLTF_VALIDATOR_DIR = Path(__file__).parent / "export" / "node"
+"""The Khronos glTF validator (npm gltf-validator, pinned by its package-lock.json) and validate.js."""
+
+
+@pytest.fixture
+def gltf_validator() -> Path:
+    """validate.js of the Khronos glTF validator (``node validate.js FILE`` prints its JSON report);
+    the test skips, saying why, where node or the package cannot be had."""
+    if shutil.which("node") is None:
+        pytest.skip("node is not installed: the Khronos glTF validator (npm gltf-validator) cannot run")
+    if not (GLTF_VALIDATOR_DIR / "node_modules" / "gltf-validator").is_dir():
+        if shutil.which("npm") is None:
+            pytest.skip("npm is not installed: cannot install gltf-validator")
+        proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund"], cwd=GLTF_VALIDATOR_DIR, capture_output=True,
+                              text=True)
+        if proc.returncode != 0:
+            pytest.skip(f"npm ci of gltf-validator failed (offline?): {proc.stderr.strip()[-200:]}")
+    return GLTF_VALIDATOR_DIR / "validate.js"

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -14,7 +13,6 @@ from srvol.export.asset import load_asset
 from srvol.export.gltf import read_glb
 from srvol.images import read_exr, read_png
 
-NODE_DIR = Path(__file__).parent / "node"
 
 
 def test_report_and_manifest(sphere_asset):
@@ -115,20 +113,8 @@ def test_glb_read_by_trimesh(sphere_asset):
     assert len(geom.faces) == len(load_asset(root).mesh.faces)
 
 
-def _node_validator():
-    if shutil.which("node") is None:
-        pytest.skip("node is not installed: the Khronos glTF validator (npm gltf-validator) cannot run")
-    if not (NODE_DIR / "node_modules" / "gltf-validator").is_dir():
-        if shutil.which("npm") is None:
-            pytest.skip("npm is not installed: cannot install gltf-validator")
-        proc = subprocess.run(["npm", "ci", "--no-audit", "--no-fund"], cwd=NODE_DIR, capture_output=True, text=True)
-        if proc.returncode != 0:
-            pytest.skip(f"npm ci of gltf-validator failed (offline?): {proc.stderr.strip()[-200:]}")
-    return NODE_DIR / "validate.js"
-
-
-def test_khronos_gltf_validator_no_errors(sphere_asset):
-    script = _node_validator()
+def test_khronos_gltf_validator_no_errors(sphere_asset, gltf_validator):
+    script = gltf_validator
     root, _ = sphere_asset
     out = subprocess.run(["node", str(script), str(root / "model.glb")], capture_output=True, text=True, check=True)
     issues = json.loads(out.stdout)
