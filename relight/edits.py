@@ -209,6 +209,16 @@ def _unit_number(key: str, text: str) -> float:
 MAX_SCALE = 4.0
 
 
+def _rgb(key: str, value: str, number) -> tuple[float, float, float]:
+    """``key=v`` (grey) or ``key=r,g,b``, each read by ``number(key, text)``."""
+    parts = value.split(",")
+    if len(parts) == 1:
+        parts = parts * 3
+    if len(parts) != 3:
+        raise SrvolError(f"material {key}={value}: expected one or three numbers")
+    return tuple(number(key, p) for p in parts)
+
+
 def _scale_number(key: str, text: str) -> float:
     try:
         x = float(text)
@@ -255,12 +265,7 @@ def parse_material(specs: Sequence[str]) -> MaterialEdit:
         elif key == "no-specular" and not value:
             edit = replace(edit, no_specular=True)
         elif key == "albedo" and value:
-            parts = value.split(",")
-            if len(parts) == 1:
-                parts = parts * 3
-            if len(parts) != 3:
-                raise SrvolError(f"material albedo={value}: expected one or three numbers")
-            edit = replace(edit, albedo=tuple(_unit_number("albedo", p) for p in parts))
+            edit = replace(edit, albedo=_rgb(key, value, _unit_number))
         elif key == "albedo-texture" and value:
             edit = replace(edit, albedo_texture=AlbedoTexture.read(value))
         elif key == "roughness" and value:
@@ -272,12 +277,7 @@ def parse_material(specs: Sequence[str]) -> MaterialEdit:
         elif key == "specular-scale" and value:
             edit = replace(edit, specular_scale=_scale_number(key, value))
         elif key == "albedo-tint" and value:
-            parts = value.split(",")
-            if len(parts) == 1:
-                parts = parts * 3
-            if len(parts) != 3:
-                raise SrvolError(f"material albedo-tint={value}: expected one or three numbers")
-            edit = replace(edit, albedo_tint=tuple(_scale_number(key, p) for p in parts))
+            edit = replace(edit, albedo_tint=_rgb(key, value, _scale_number))
         else:
             raise SrvolError(f"unknown material spec {tok!r} (expected {SPEC_HELP})")
     if edit.no_specular and edit.specular is not None:
