@@ -100,14 +100,17 @@ def _atomic_torch_save(obj, path: Path) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def save_checkpoint(ckpt_dir: Path, fields, optimizers, state: TrainState, gen_state: torch.Tensor) -> None:
-    """Atomically write fields, optimiser states and the RNG state, then the train state as JSON."""
+def save_checkpoint(ckpt_dir: Path, fields, optimizers, state: TrainState, gen_state: torch.Tensor,
+                    capture=None) -> None:
+    """Atomically write fields, optimiser states, the RNG state and the capture terms (if any),
+    then the train state as JSON."""
     from srvol.atomic import atomic_write_text
 
     ckpt_dir.mkdir(parents=True, exist_ok=True)
     name = f"weights_{state.step:08d}.pt"
     _atomic_torch_save({"fields": fields.state_dict(), "optimizers": [o.state_dict() for o in optimizers],
-                        "generator": gen_state}, ckpt_dir / name)
+                        "generator": gen_state, **({"capture": capture.state_dict()} if capture is not None else {})},
+                       ckpt_dir / name)
     atomic_write_text(ckpt_dir / STATE_NAME, json.dumps({"format": CHECKPOINT_FORMAT, "weights": name,
                                                           "state": asdict(state)}, indent=1))
     for old in ckpt_dir.glob("weights_*.pt"):
@@ -139,14 +142,17 @@ def _read_checkpoint(ckpt_dir: Path) -> tuple[TrainState, dict] | None:
     return None
 
 
-def load_checkpoint(ckpt_dir: Path, fields) -> Checkpoint | None:
-    """Restore ``fields`` in place from the last checkpoint; None when there is none."""
+def load_checkpoint(ckpt_dir: Path, fields, capture=None) -> Checkpoint | None:
+    """Restore ``fields`` (and the ``capture`` terms, when the run has them) in place from the last
+    checkpoint; None when there is none."""
     read = _read_checkpoint(ckpt_dir)
     if read is None:
         return None
     state, saved = read
     try:
         fields.load_state_dict(saved["fields"])
+        if capture is not None:
+            capture.load_state_dict(saved["capture"])
         ck = Checkpoint(state=state, optimizer_states=saved["optimizers"], generator_state=saved["generator"])
     except (KeyError, RuntimeError, TypeError) as e:
         raise SrvolError(f"{ckpt_dir}: checkpoint does not match the run's fields ({e.__class__.__name__})") from None

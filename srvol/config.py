@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from srvol.capture.terms import CaptureTermsConfig
 from srvol.data import Scene
 from srvol.errors import SrvolError
 from srvol.fields import FieldConfig
@@ -80,6 +81,9 @@ class TrainConfig:
     silhouette_rays: float = 0.0
     """Share of the out-of-mask rays drawn from each view's mask bounding box (+2 px), where the mask
     carves gaps between legs or under a seat; the rest from anywhere outside the mask."""
+    capture: CaptureTermsConfig | None = None
+    """Real-capture terms (per-photo exposure, flash offset, vignetting, ambient; srvol.capture.terms),
+    None = the co-located model of DESIGN.md section 3 as it is (calibrated and synthetic scenes)."""
     iters: int = 0
     """Total iterations of both stages; 0 = run until ``time_budget``."""
     time_budget: float = 600.0
@@ -96,6 +100,7 @@ class TrainConfig:
         d = asdict(self)
         d["fields"] = self.fields.to_json()
         d["reasons"] = list(self.reasons)
+        d["capture"] = self.capture.to_json() if self.capture is not None else None
         d["version"] = CONFIG_VERSION
         return d
 
@@ -108,6 +113,7 @@ class TrainConfig:
         if d.get("stage2_sampler"):
             d["stage2_sampler"] = SamplerConfig(**d["stage2_sampler"])
         d["reasons"] = tuple(d.get("reasons", ()))
+        d["capture"] = CaptureTermsConfig.from_json(d["capture"]) if d.get("capture") else None
         known = TrainConfig.__dataclass_fields__
         return TrainConfig(**{k: v for k, v in d.items() if k in known})
 
@@ -251,8 +257,21 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                       time_budget=time_budget)
     reasons.append(f"{n_in} in-mask training pixels; {batch_in} per step x {ns} rays "
                    f"(stage 2: {rays_per_step(cfg, 2)} rays per step)")
+    if is_imported(scene):
+        capture = CaptureTermsConfig()
+        cfg = replace(cfg, capture=capture)
+        reasons.append(f"real-capture terms on ({capture.describe()}): the scene was imported from photos "
+                       "(scene.json has a normalization), which carry auto-exposure, a flash beside the lens, "
+                       "lens vignetting and some ambient light")
     reasons.append(f"time budget {time_budget:.0f} s for both stages")
     return replace(cfg, reasons=tuple(reasons))
+
+
+def is_imported(scene: Scene) -> bool:
+    """Whether ``scene`` was made by ``srvol import`` (its scene.json records the capture's normalization)."""
+    from srvol.capture.frame import read_normalization
+
+    return read_normalization(scene.root) is not None
 
 
 def psf_sampler_of_stage(cfg: TrainConfig, stage: int) -> str:

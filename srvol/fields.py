@@ -61,6 +61,7 @@ class FieldConfig:
     mat_hidden: int = 64
     init_radius: float = 0.5
     activation: str = "gelu"
+    sdf_interp: str = "smoothstep"
     paper_sdf_layers: int = 5
     paper_sdf_width: int = 512
     paper_sdf_skip: int = 4
@@ -82,6 +83,7 @@ class FieldConfig:
         d = dict(d)
         d["sdf_levels"] = tuple(d.get("sdf_levels", FieldConfig.sdf_levels))
         d.setdefault("activation", "softplus")  # saved before the choice existed
+        d.setdefault("sdf_interp", "smoothstep")  # saved before the choice existed
         known = FieldConfig.__dataclass_fields__
         return FieldConfig(**{k: v for k, v in d.items() if k in known})
 
@@ -142,8 +144,9 @@ class DenseGrids(nn.Module):
     eikonal and shading losses differentiate through it.
     """
 
-    def __init__(self, levels: tuple[int, ...], channels: int, init_std: float = 1e-4):
+    def __init__(self, levels: tuple[int, ...], channels: int, init_std: float = 1e-4, smooth: bool = True):
         super().__init__()
+        self.smooth = smooth
         self.levels = tuple(levels)
         self.offsets = [0]
         for r in self.levels:
@@ -158,7 +161,7 @@ class DenseGrids(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         idx, ws = [], []
         for lvl, res in enumerate(self.levels):
-            c, w = _cell_corners(x, res, smooth=True)
+            c, w = _cell_corners(x, res, smooth=self.smooth)
             idx.append((c[..., 0] * res + c[..., 1]) * res + c[..., 2] + self.offsets[lvl])
             ws.append(w)
         feats = _gather_rows(self.table, torch.stack(idx, 1))  # (N, L, 8, C)
@@ -336,7 +339,7 @@ class GridSDF(nn.Module):
     def __init__(self, cfg: FieldConfig):
         super().__init__()
         self.r0 = cfg.init_radius
-        self.grids = DenseGrids(cfg.sdf_levels, cfg.sdf_channels)
+        self.grids = DenseGrids(cfg.sdf_levels, cfg.sdf_channels, smooth=cfg.sdf_interp == "smoothstep")
         self.head = _mlp(self.grids.out_dim + 3, cfg.sdf_hidden, 1, 3, cfg.activation)
         with torch.no_grad():
             self.head[-1].weight.mul_(0.01)

@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from srvol.capture.terms import CaptureTerms
 from srvol.config import TrainConfig, sampler_of_stage
 from srvol.fields import SceneFields
 from srvol.pixels import PixelBank, PixelBatch, sample_pixels
@@ -69,9 +70,12 @@ def squared_error(estimate: Tensor, batch: PixelBatch) -> tuple[float, float]:
 
 
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
-                 gen: torch.Generator, intensity: Tensor, progress: float = 1.0) -> LossTerms:
+                 gen: torch.Generator, intensity: Tensor, progress: float = 1.0,
+                 capture: CaptureTerms | None = None) -> LossTerms:
     """L1 on in-mask pixels (PSF estimates) + lambda_e eikonal + lambda_m mask BCE (stage 1 only).
-    ``progress`` in [0, 1] (share of the run done) selects the PSF rays per pixel (psf_warmup)."""
+    ``progress`` in [0, 1] (share of the run done) selects the PSF rays per pixel (psf_warmup).
+    ``capture``: each ray is lit by its photo's flash, and the pixel estimates pass through the
+    photo's exposure, vignetting and ambient term before they meet the photo."""
     train_geo = stage == 1
     batch = sample_pixels(bank, cfg, psf, stage, gen, progress)
     rays = batch.rays
@@ -79,12 +83,19 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     if use_mask:
         out = bank.sample(cfg.batch_out, False, psf, 1, gen, near_share=cfg.silhouette_rays)
         rays = Rays(torch.cat([rays.origins, out.rays.origins]), torch.cat([rays.directions, out.rays.directions]))
-    light = PointLight(position=rays.origins, intensity=intensity)  # co-located: at each ray's camera
     n_pix_rays = batch.n_rays
+    light_at = rays.origins  # co-located: at each ray's camera
+    if capture is not None:
+        v = batch.ray_view
+        flash = capture.flash_position(bank.centers[v], bank.W2C_R[v])
+        light_at = torch.cat([flash, rays.origins[n_pix_rays:]])
+    light = PointLight(position=light_at, intensity=intensity)
     shade_rays = torch.arange(len(rays), device=rays.origins.device) < n_pix_rays
     vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=train_geo,
-                       shade_rays=shade_rays)
+                       shade_rays=shade_rays, with_albedo=capture is not None)
     rgb = batch.estimate(vr.result.rgb[:n_pix_rays])
+    if capture is not None:
+        rgb = capture.apply(rgb, batch.estimate(vr.albedo[:n_pix_rays]), batch.view, batch.r2)
     photometric = photometric_l1(rgb, batch)
     total = photometric
     eik = torch.zeros(())

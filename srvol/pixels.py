@@ -14,6 +14,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from srvol.capture.terms import radial2
 from srvol.config import TrainConfig, psf_rays_per_pixel, psf_sampler_of_stage, rays_per_step
 from srvol.data import Scene
 from srvol.errors import SrvolError
@@ -26,13 +27,18 @@ class PixelBatch:
     """G groups of P LR pixels estimated from R rays each (``rays`` has G * R entries, group-major).
 
     weights (G, P, R), rows summing to 1; target (G * P, 3) linear colour; mask (G * P,)
-    foreground in {0, 1}.
+    foreground in {0, 1}; view (G * P,) the training view of each pixel and r2 (G * P,) its squared
+    distance from the image centre over the squared half-diagonal (the capture terms' exposure and
+    vignetting); ray_view (G * R,) the view of each ray (its flash position).
     """
 
     rays: Rays
     weights: Tensor
     target: Tensor
     mask: Tensor
+    view: Tensor
+    r2: Tensor
+    ray_view: Tensor
 
     @property
     def n_rays(self) -> int:
@@ -79,6 +85,12 @@ class PixelBank:
         self.view = torch.from_numpy(np.concatenate(vid)).long().to(device)
         self.ij = torch.from_numpy(np.concatenate(ij)).float().to(device)
         self.sizes = torch.tensor(sizes, dtype=torch.long, device=device)
+        self.W2C_R = W2C[:, :3, :3].contiguous().to(device)
+        hw = self.sizes[self.view].float()  # (pixels, 2) = (H, W) of each pixel's view
+        self.r2 = radial2(self.ij + 0.5, hw[:, 1], hw[:, 0])
+        by_size = {s: k for k, s in enumerate(dict.fromkeys(sizes))}
+        self.camera_of_view = torch.tensor([by_size[s] for s in sizes], dtype=torch.long, device=device)
+        """One camera per image size (a phone's photos of one size share the lens: the vignetting)."""
         self.view_start = torch.tensor(start[:-1], dtype=torch.long, device=device)
         self.inside = torch.nonzero(self.mask).squeeze(-1)
         self.outside = torch.nonzero(~self.mask).squeeze(-1)
@@ -125,8 +137,10 @@ class PixelBank:
         uv = self.ij[pick][:, None, :] + 0.5 + offsets
         S = offsets.shape[1]
         weights = torch.full((n, 1, S), 1.0 / S, device=self.device)
-        return PixelBatch(rays=self.rays(self.view[pick], uv), weights=weights, target=self.colour[pick],
-                          mask=self.mask[pick].float())
+        view = self.view[pick]
+        return PixelBatch(rays=self.rays(view, uv), weights=weights, target=self.colour[pick],
+                          mask=self.mask[pick].float(), view=view, r2=self.r2[pick],
+                          ray_view=view.repeat_interleave(S))
 
     @staticmethod
     def _pick(pool: Tensor, n: int, generator: torch.Generator) -> Tensor:
@@ -155,7 +169,8 @@ class PixelBank:
         rows = self.view_start[view][:, None] + px[..., 1] * W[:, None] + px[..., 0]
         rows = rows.reshape(-1)
         return PixelBatch(rays=self.rays(view, uv), weights=weights, target=self.colour[rows],
-                          mask=self.mask[rows].float())
+                          mask=self.mask[rows].float(), view=self.view[rows], r2=self.r2[rows],
+                          ray_view=view.repeat_interleave(uv.shape[1]))
 
 
 def sample_pixels(bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int, gen: torch.Generator,

@@ -52,6 +52,8 @@ class VolumeRender:
 
     result: RenderResult
     sdf_gradients: Tensor
+    albedo: Tensor | None = None
+    """(N, 3) weight-averaged albedo of the shaded rays (``with_albedo``; the ambient capture term)."""
 
 
 def laplace_density(sdf: Tensor, beta: Tensor) -> Tensor:
@@ -171,7 +173,7 @@ def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitte
 
 def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: SamplerConfig,
                   train_geometry: bool, jitter: bool = True, shade_rays: Tensor | None = None,
-                  min_weight: float = 1e-4, skip_empty: bool = False) -> VolumeRender:
+                  min_weight: float = 1e-4, skip_empty: bool = False, with_albedo: bool = False) -> VolumeRender:
     """Render rays under ``light`` (position (3,) or (N, 3) per ray).
 
     ``train_geometry``: keep the graph through the SDF gradient (eikonal and shading
@@ -180,6 +182,7 @@ def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: Sampl
     the silhouette that only feed the mask loss -- get opacity, normal and depth only).
     Samples with weight below ``min_weight`` are not shaded (their contribution is < 1e-4).
     ``skip_empty`` (evaluation): rays whose locating pass saw opacity < 1e-3 return zeros.
+    ``with_albedo``: also the weight-averaged albedo of the shaded rays (not with ``skip_empty``).
     """
     rs = sample_along_rays(fields, rays, cfg, jitter)
     N = len(rays)
@@ -211,11 +214,15 @@ def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: Sampl
     if light.position.dim() == 2:
         light = PointLight(light.position[ray_of], light.intensity)
     radiance = torch.zeros(n * S, 3, dtype=pts.dtype, device=pts.device)
+    albedo = torch.zeros(n * S, 3, dtype=pts.dtype, device=pts.device) if with_albedo else None
     if sel.numel():
         p = pts[sel]
-        radiance = radiance.index_put((sel,), shade(fields.material(p), normals[sel], p,
-                                                    -rays_l.directions[ray_of], light))
+        mat = fields.material(p)
+        radiance = radiance.index_put((sel,), shade(mat, normals[sel], p, -rays_l.directions[ray_of], light))
+        if with_albedo:
+            albedo = albedo.index_put((sel,), mat.albedo)
     rgb = (w[..., None] * radiance.reshape(n, S, 3)).sum(1)
+    albedo_ray = (w[..., None] * albedo.reshape(n, S, 3)).sum(1) if with_albedo else None
     opacity = w.sum(1)
     normal = (w[..., None] * normals.reshape(n, S, 3)).sum(1)
     depth = (w * t).sum(1)
@@ -227,7 +234,7 @@ def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: Sampl
 
         rgb, opacity, normal, depth = full(rgb), full(opacity), full(normal), full(depth)
     return VolumeRender(result=RenderResult(rgb=rgb, opacity=opacity, normal=normal, depth=depth),
-                        sdf_gradients=g)
+                        sdf_gradients=g, albedo=albedo_ray if not skip_empty else None)
 
 
 def render_chunked(fields: SceneFields, rays: Rays, light_fn, cfg: SamplerConfig, chunk: int = 4096) -> RenderResult:

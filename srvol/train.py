@@ -15,6 +15,8 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from srvol.atomic import atomic_write_text
+from srvol.capture.terms import CaptureTerms
 from srvol.checkpoint import TrainState, load_checkpoint, save_checkpoint, save_snapshot, write_model
 from srvol.config import TrainConfig, rays_per_step
 from srvol.data import Scene
@@ -24,10 +26,14 @@ from srvol.losses import compute_loss, psnr_of
 from srvol.pixels import PixelBank
 from srvol.psf import PsfSampler, SRMode
 
+CAPTURE_TERMS_NAME = "capture_terms.json"
+"""The learned capture terms of a run that has them (per-photo gains, flash offset, vignetting, ambient)."""
+
 
 # ----------------------------------------------------------------------------- optimisation
 
-def make_optimizers(fields: SceneFields, cfg: TrainConfig, stage: int) -> list[torch.optim.Optimizer]:
+def make_optimizers(fields: SceneFields, cfg: TrainConfig, stage: int,
+                    capture: CaptureTerms | None = None) -> list[torch.optim.Optimizer]:
     albedo_p, spec_p, table_p = fields.material_groups()
     opts: list[torch.optim.Optimizer] = []
     groups = []
@@ -46,14 +52,20 @@ def make_optimizers(fields: SceneFields, cfg: TrainConfig, stage: int) -> list[t
         groups.append({"params": table_p, "lr": cfg.lr_grid, "base_lr": cfg.lr_grid})
     if fields.log_intensity.requires_grad:
         groups.append({"params": [fields.log_intensity], "lr": cfg.lr, "base_lr": cfg.lr})
+    if capture is not None:
+        # both stages: exposure, vignetting and ambient are part of the colour the BRDF is fitted to
+        capture_p = [p for p in capture.parameters() if p.requires_grad]
+        if capture_p:
+            groups.append({"params": capture_p, "lr": cfg.lr, "base_lr": cfg.lr})
     # fused Adam: one kernel over all parameters (large grids), ~7x faster than the loop on CPU
     opts.append(torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15, fused=True))
     return opts
 
 
-def restore_optimizers(fields: SceneFields, cfg: TrainConfig, ck) -> list[torch.optim.Optimizer]:
+def restore_optimizers(fields: SceneFields, cfg: TrainConfig, ck,
+                       capture: CaptureTerms | None = None) -> list[torch.optim.Optimizer]:
     """The optimisers of the checkpoint's stage with their saved states."""
-    opts = make_optimizers(fields, cfg, ck.state.stage)
+    opts = make_optimizers(fields, cfg, ck.state.stage, capture)
     for o, saved in zip(opts, ck.optimizer_states):
         o.load_state_dict(saved)
     return opts
@@ -130,15 +142,17 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     fields = SceneFields(cfg.fields, learn_intensity=learn_I).to(device)
     fixed_I = None if learn_I else torch.tensor(scene.info.light_intensity, dtype=torch.float32, device=device)
     bank = PixelBank(scene, device)
+    capture = (CaptureTerms(len(scene.train), bank.camera_of_view, cfg.capture).to(device)
+               if cfg.capture is not None else None)
     state = TrainState()
     ckpt_dir = run_dir / "checkpoints"
-    opts = make_optimizers(fields, cfg, 1)
+    opts = make_optimizers(fields, cfg, 1, capture)
     if resume:
-        ck = load_checkpoint(ckpt_dir, fields)
+        ck = load_checkpoint(ckpt_dir, fields, capture)
         if ck is None:
             raise SrvolError(f"{ckpt_dir}: nothing to resume (no checkpoint)")
         state = ck.state
-        opts = restore_optimizers(fields, cfg, ck)
+        opts = restore_optimizers(fields, cfg, ck, capture)
         gen.set_state(ck.generator_state)
         say(f"resuming at step {state.step} (stage {state.stage}, {state.elapsed:.0f} s trained)")
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
@@ -179,22 +193,22 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             state.stage = want_stage
             for p in fields.geometry_parameters():
                 p.requires_grad_(False)
-            opts = make_optimizers(fields, cfg, 2)
+            opts = make_optimizers(fields, cfg, 2, capture)
             recent.clear()  # the logged PSNR speaks of one stage
             say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "
                 f"({rays_per_step(cfg, 2)} rays per step)")
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         intensity = fixed_I if fixed_I is not None else fields.intensity
-        terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac)
+        terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac, capture)
         if not torch.isfinite(terms.total):
             state.rollbacks += 1
             if state.rollbacks > 5:
                 raise SrvolError("training diverged: the loss stayed non-finite after 5 rollbacks")
-            ck = load_checkpoint(ckpt_dir, fields)
+            ck = load_checkpoint(ckpt_dir, fields, capture)
             state.lr_scale *= 0.5
             if ck is not None:
                 state.step, state.stage = ck.state.step, ck.state.stage
-                opts = restore_optimizers(fields, cfg, ck)
+                opts = restore_optimizers(fields, cfg, ck, capture)
             say(f"non-finite loss at step {state.step}: rolled back to step {last_good_step} "
                 f"with learning rate x{state.lr_scale:g}")
             continue
@@ -228,15 +242,17 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             reason = check_not_collapsed(fields, device)
             if reason:
                 raise SrvolError(f"step {state.step}: {reason}")
-            save_checkpoint(ckpt_dir, fields, opts, state, gen.get_state())
+            save_checkpoint(ckpt_dir, fields, opts, state, gen.get_state(), capture)
             last_good_step = state.step
     bar.close()
     reason = check_not_collapsed(fields, device)
     if reason:
         raise SrvolError(reason)
-    save_checkpoint(ckpt_dir, fields, opts, state, gen.get_state())
+    save_checkpoint(ckpt_dir, fields, opts, state, gen.get_state(), capture)
     if cfg.snapshots and snaps_done < cfg.snapshots:
         save_snapshot(run_dir / "snapshots", fields, state.step, state.elapsed)
     write_model(run_dir, fields)
+    if capture is not None:
+        atomic_write_text(run_dir / CAPTURE_TERMS_NAME, json.dumps(capture.values(scene.train), indent=1) + "\n")
     return TrainSummary(iterations=state.step, train_seconds=state.elapsed,
                         final_psnr=recent_psnr(recent), rollbacks=state.rollbacks)

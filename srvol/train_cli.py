@@ -61,6 +61,15 @@ def add_parser(sub) -> None:
                    help="no-grad samples added, in both stages and at evaluation, inside the first interval of "
                         "each ray where the surface may lie (d + d' < spacing): parts thinner than the locating "
                         "samples' spacing are found (default 0)")
+    p.add_argument("--capture-terms", metavar="LIST",
+                   help="real-capture terms to learn: 'all', 'none' or a comma list of exposure (a gain per "
+                        "photo), flash (the flash's offset from the lens), vignetting (per camera), ambient "
+                        "(default: auto all for a scene made by 'srvol import', none otherwise)")
+    p.add_argument("--flash-offset", metavar="X,Y,Z",
+                   help="the flash's offset from the lens in the camera frame (x right, y down, z forward), in "
+                        "the units of the capture's poses (SfM, --colmap, --transforms); given, it is not learned")
+    p.add_argument("--sdf-interp", choices=("smoothstep", "trilinear"),
+                   help="grid presets: interpolation of the SDF's feature grids (default: smoothstep)")
     p.add_argument("--capacity", type=float, default=1.0,
                    help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
                         "this factor -- for capacity studies (default 1: what the scene needs)")
@@ -83,6 +92,43 @@ def _share(value: float, flag: str, most: float) -> float:
     if not (math.isfinite(value) and 0.0 <= value <= most):
         raise SrvolError(f"{flag} {value}: must be between 0 and {most:g}")
     return value
+
+
+def _capture_terms(scene, args, default):
+    """The capture terms the flags ask for (``default``: the preset's)."""
+    from srvol.capture.frame import read_normalization
+    from srvol.capture.terms import TERM_NAMES, terms_config
+
+    offset = None
+    if args.flash_offset is not None:
+        try:
+            offset = tuple(float(v) for v in args.flash_offset.split(","))
+        except ValueError:
+            offset = ()
+        if len(offset) != 3 or not all(math.isfinite(v) for v in offset):
+            raise SrvolError(f"--flash-offset {args.flash_offset!r}: give three numbers X,Y,Z")
+        norm = read_normalization(scene.root)
+        offset = tuple(v * (norm.scale if norm is not None else 1.0) for v in offset)  # capture -> scene units
+    if args.capture_terms is None:
+        if offset is None:
+            return default
+        names = set(TERM_NAMES) if default is None else {
+            n for n, on in (("exposure", default.exposure), ("vignetting", default.vignetting),
+                            ("ambient", default.ambient)) if on} | {"flash"}
+        return terms_config(names, offset)
+    words = {w.strip() for w in args.capture_terms.split(",") if w.strip()}
+    if words == {"none"}:
+        if offset is not None:
+            raise SrvolError("--flash-offset needs the flash term (--capture-terms none turns it off)")
+        return None
+    names = set(TERM_NAMES) if words == {"all"} else words
+    unknown = sorted(names - set(TERM_NAMES))
+    if unknown or not names:
+        raise SrvolError(f"--capture-terms {args.capture_terms!r}: 'all', 'none' or a comma list of "
+                         f"{', '.join(TERM_NAMES)}")
+    if offset is not None and "flash" not in names:
+        raise SrvolError("--flash-offset needs the flash term in --capture-terms")
+    return terms_config(names, offset)
 
 
 def build_config(scene, args):
@@ -136,6 +182,15 @@ def build_config(scene, args):
         changes["sampler"] = replace(cfg.sampler, n_refine=args.refine_samples)
         if cfg.stage2_sampler is not None:
             changes["stage2_sampler"] = replace(cfg.stage2_sampler, n_refine=args.refine_samples)
+    capture = _capture_terms(scene, args, cfg.capture)
+    if capture != cfg.capture:
+        changes["capture"] = capture
+        changes["reasons"] = changes.get("reasons", cfg.reasons) + (
+            f"real-capture terms (asked): {capture.describe() if capture else 'none'}",)
+    if args.sdf_interp is not None:
+        if cfg.fields.kind != "grid":
+            raise SrvolError("--sdf-interp applies to the grid presets (auto, fast), not paper")
+        changes["fields"] = replace(cfg.fields, sdf_interp=args.sdf_interp)
     if args.time_budget <= 0 and args.iters is None:
         raise SrvolError("--time-budget must be > 0 (or give --iters)")
     return replace(cfg, **changes)

@@ -1,6 +1,5 @@
-"""Real-capture terms of the image formation (issue 16, part 2), ready for training to hook in.
-
-What a phone adds to the co-located model of DESIGN.md section 3, each a small parameter:
+"""Real-capture terms of the image formation: what a phone adds to the co-located model of
+DESIGN.md section 3, each a small parameter:
 
 * a per-photo **exposure gain** (auto-exposure), exp(log_gain[view]); one reference photo is fixed at 1
   (the light's intensity carries the common scale);
@@ -14,11 +13,11 @@ A pixel then reads  gain[view] * vignette(r) * (L_flash(x; light at centre + R^T
 exactly how ``srvol synth --capture`` makes its photos before noise, clipping and sRGB
 (:mod:`srvol.synth.capture`; ``tests/capture/test_terms.py`` checks the two agree).
 
-Not yet hooked into training (srvol/losses.py, srvol/pixels.py and srvol/train.py); the hooks it needs:
-the pixel batch carries each pixel's view and LR coordinates, the photometric loss compares
-:meth:`CaptureTerms.apply` of the rendered radiance (plus the rendered albedo for the ambient term)
-instead of the radiance, the co-located light of a ray becomes :meth:`CaptureTerms.flash_position`,
-and the optimiser gets the terms' parameters. Per-photo pose refinement is not here.
+Training (``srvol/losses.py``) renders each ray under its photo's flash, compares
+:meth:`CaptureTerms.apply` of the rendered radiance and albedo with the photo, and optimises the
+terms with the fields in both stages; ``auto`` turns them on for imported scenes (scene.json has a
+``normalization``). The learned values are saved in RUN/capture_terms.json. Per-photo pose refinement
+is not here.
 """
 from __future__ import annotations
 
@@ -38,6 +37,46 @@ class CaptureTermsConfig:
     flash_offset: tuple[float, float, float] | None = None
     learn_flash_offset: bool = True
     reference_view: int = 0
+
+    def to_json(self) -> dict:
+        return {"exposure": self.exposure, "vignetting": self.vignetting, "ambient": self.ambient,
+                "flash_offset": list(self.flash_offset) if self.flash_offset is not None else None,
+                "learn_flash_offset": self.learn_flash_offset, "reference_view": self.reference_view}
+
+    @staticmethod
+    def from_json(d: dict) -> "CaptureTermsConfig":
+        off = d.get("flash_offset")
+        return CaptureTermsConfig(exposure=bool(d.get("exposure", True)), vignetting=bool(d.get("vignetting", True)),
+                                  ambient=bool(d.get("ambient", True)),
+                                  flash_offset=tuple(float(v) for v in off) if off is not None else None,
+                                  learn_flash_offset=bool(d.get("learn_flash_offset", True)),
+                                  reference_view=int(d.get("reference_view", 0)))
+
+    def describe(self) -> str:
+        """The terms that are on, in words (``srvol train`` prints it)."""
+        on = [name for name, flag in (("exposure gain per photo", self.exposure), ("vignetting per camera",
+              self.vignetting), ("ambient", self.ambient)) if flag]
+        if self.flash_offset is not None:
+            on.append("flash offset given ({:.4g}, {:.4g}, {:.4g})".format(*self.flash_offset))
+        elif self.learn_flash_offset:
+            on.append("flash offset learned")
+        return ", ".join(on) if on else "none"
+
+
+AMBIENT_RAW_START = -6.9
+"""softplus(-6.9) = 0.001: the ambient term starts near zero (weak, as the flash dominates)."""
+
+TERM_NAMES = ("exposure", "flash", "vignetting", "ambient")
+"""The terms ``--capture-terms`` names."""
+
+
+def terms_config(names: set[str], flash_offset: tuple[float, float, float] | None = None) -> CaptureTermsConfig:
+    """The config with the terms ``names`` (a subset of :data:`TERM_NAMES`) on; the flash offset is
+    given when ``flash_offset`` is (and "flash" is on), learned otherwise."""
+    flash = "flash" in names
+    return CaptureTermsConfig(exposure="exposure" in names, vignetting="vignetting" in names,
+                              ambient="ambient" in names, flash_offset=flash_offset if flash else None,
+                              learn_flash_offset=flash and flash_offset is None)
 
 
 def radial2(uv: Tensor, width: int, height: int) -> Tensor:
@@ -62,10 +101,25 @@ class CaptureTerms(nn.Module):
             free[config.reference_view] = 0.0
         self.register_buffer("gain_free", free)
         self.vignetting = nn.Parameter(torch.zeros(n_cameras, 2), requires_grad=config.vignetting)
-        self.ambient = nn.Parameter(torch.zeros(3), requires_grad=config.ambient)
+        # softplus-parametrised: ambient light is never negative (learned freely it went to -0.05
+        # within 30 steps on the bunny capture, while the geometry was still a sphere)
+        self.ambient_raw = nn.Parameter(torch.full((3,), AMBIENT_RAW_START), requires_grad=config.ambient)
         offset = torch.tensor(config.flash_offset if config.flash_offset is not None else (0.0, 0.0, 0.0))
         self.flash_offset = nn.Parameter(offset.float(), requires_grad=config.flash_offset is None
                                          and config.learn_flash_offset)
+
+    @property
+    def ambient(self) -> Tensor:
+        """(3,) ambient radiance per unit albedo, >= 0 (0 when the term is off)."""
+        if not self.config.ambient:
+            return torch.zeros_like(self.ambient_raw)
+        return nn.functional.softplus(self.ambient_raw)
+
+    @torch.no_grad()
+    def set_ambient(self, rgb) -> None:
+        """Set the ambient term to ``rgb`` (3,) > 0 (tests, known captures)."""
+        a = torch.as_tensor(rgb, dtype=self.ambient_raw.dtype)
+        self.ambient_raw.copy_(a + torch.log(-torch.expm1(-a)))  # softplus^-1
 
     def gain(self, view: Tensor) -> Tensor:
         """(P,) exposure gain of each pixel's photo (the reference photo's is 1)."""
@@ -79,6 +133,16 @@ class CaptureTerms(nn.Module):
     def flash_position(self, centers: Tensor, rotations: Tensor) -> Tensor:
         """(P, 3) flash positions of photos with camera centres (P, 3) and world-to-camera rotations (P, 3, 3)."""
         return centers + torch.einsum("pji,j->pi", rotations, self.flash_offset.to(centers))
+
+    def values(self, view_names: list[str]) -> dict:
+        """The learned values, for RUN/capture_terms.json."""
+        gains = torch.exp(self.log_gain * self.gain_free).detach().cpu()
+        return {"exposure_gain": {n: round(float(g), 5) for n, g in zip(view_names, gains)},
+                "flash_offset_camera_frame": [round(float(v), 6) for v in self.flash_offset.detach().cpu()],
+                "vignetting_k1_k2_per_camera": [[round(float(v), 5) for v in row]
+                                                for row in self.vignetting.detach().cpu()],
+                "ambient_rgb": [round(float(v), 6) for v in self.ambient.detach().cpu()],
+                "config": self.config.to_json()}
 
     def apply(self, radiance: Tensor, albedo: Tensor, view: Tensor, r2: Tensor) -> Tensor:
         """(P, 3) what the photos record of (P, 3) flash radiance at surfaces of (P, 3) albedo."""

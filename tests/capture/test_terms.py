@@ -19,7 +19,7 @@ def test_vignetting_and_gain_match_the_synthetic_photos():
     with torch.no_grad():
         terms.vignetting[0] = torch.tensor(opts.vignetting)
         terms.log_gain[:] = torch.log(torch.tensor([5.0, 2.0, 0.5]))
-        terms.ambient[:] = torch.tensor([0.01, 0.01, 0.01])
+        terms.set_ambient([0.01, 0.01, 0.01])
     j, i = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
     uv = torch.stack([i.reshape(-1) + 0.5, j.reshape(-1) + 0.5], -1).float()
     radiance, albedo = torch.rand(W * H, 3), torch.rand(W * H, 3)
