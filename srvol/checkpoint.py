@@ -157,7 +157,7 @@ def load_checkpoint(ckpt_dir: Path, fields, capture=None) -> Checkpoint | None:
     except (KeyError, RuntimeError, TypeError) as e:
         raise SrvolError(f"{ckpt_dir}: checkpoint does not match the run's fields ({e.__class__.__name__})") from None
     if state.stage == 2:
-        for p in fields.geometry_parameters():
+        for p in fields.geometry_parameters() + (capture.pose_parameters() if capture is not None else []):
             p.requires_grad_(False)
     return ck
 

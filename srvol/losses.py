@@ -78,17 +78,19 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     photo's exposure, vignetting and ambient term before they meet the photo."""
     train_geo = stage == 1
     batch = sample_pixels(bank, cfg, psf, stage, gen, progress)
-    rays = batch.rays
+    rays, ray_view = batch.rays, batch.ray_view
     use_mask = train_geo and bank.has_masks and len(bank.outside) > 0
     if use_mask:
         out = bank.sample(cfg.batch_out, False, psf, 1, gen, near_share=cfg.silhouette_rays)
         rays = Rays(torch.cat([rays.origins, out.rays.origins]), torch.cat([rays.directions, out.rays.directions]))
+        ray_view = torch.cat([ray_view, out.ray_view])
     n_pix_rays = batch.n_rays
     light_at = rays.origins  # co-located: at each ray's camera
     if capture is not None:
+        origins, directions = capture.refine_rays(rays.origins, rays.directions, ray_view)
+        rays = Rays(origins, directions)
         v = batch.ray_view
-        flash = capture.flash_position(bank.centers[v], bank.W2C_R[v])
-        light_at = torch.cat([flash, rays.origins[n_pix_rays:]])
+        light_at = torch.cat([capture.flash_position(origins[:n_pix_rays], bank.W2C_R[v]), origins[n_pix_rays:]])
     light = PointLight(position=light_at, intensity=intensity)
     shade_rays = torch.arange(len(rays), device=rays.origins.device) < n_pix_rays
     vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=train_geo,

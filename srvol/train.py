@@ -26,6 +26,10 @@ from srvol.losses import compute_loss, psnr_of
 from srvol.pixels import PixelBank
 from srvol.psf import PsfSampler, SRMode
 
+POSE_LR = 2e-4
+"""Adam's rate for the pose refinement (radians and scene units per step, before the decay): 0.01 deg
+a step, so that a pose moves a fraction of a degree over a run while the shape forms."""
+
 CAPTURE_TERMS_NAME = "capture_terms.json"
 """The learned capture terms of a run that has them (per-photo gains, flash offset, vignetting, ambient)."""
 
@@ -54,9 +58,12 @@ def make_optimizers(fields: SceneFields, cfg: TrainConfig, stage: int,
         groups.append({"params": [fields.log_intensity], "lr": cfg.lr, "base_lr": cfg.lr})
     if capture is not None:
         # both stages: exposure, vignetting and ambient are part of the colour the BRDF is fitted to
-        capture_p = [p for p in capture.parameters() if p.requires_grad]
+        pose_p = capture.pose_parameters()
+        capture_p = [p for p in capture.parameters() if p.requires_grad and all(p is not q for q in pose_p)]
         if capture_p:
             groups.append({"params": capture_p, "lr": cfg.lr, "base_lr": cfg.lr})
+        if pose_p and stage == 1:  # the poses settle with the geometry; stage 2 freezes both
+            groups.append({"params": pose_p, "lr": POSE_LR, "base_lr": POSE_LR})
     # fused Adam: one kernel over all parameters (large grids), ~7x faster than the loop on CPU
     opts.append(torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15, fused=True))
     return opts
@@ -191,7 +198,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                 break
         if want_stage != state.stage:
             state.stage = want_stage
-            for p in fields.geometry_parameters():
+            for p in fields.geometry_parameters() + (capture.pose_parameters() if capture is not None else []):
                 p.requires_grad_(False)
             opts = make_optimizers(fields, cfg, 2, capture)
             recent.clear()  # the logged PSNR speaks of one stage

@@ -47,11 +47,12 @@ def test_every_term_gets_a_gradient_and_the_reference_photo_keeps_gain_one(small
     loss = compute_loss(fields, bank, cfg, psf, 1, torch.Generator().manual_seed(0), fields.intensity,
                         capture=terms)
     loss.total.backward()
-    for name in ("log_gain", "vignetting", "ambient_raw", "flash_offset"):
+    for name in ("log_gain", "vignetting", "ambient_raw", "flash_offset", "pose_rotation", "pose_shift"):
         grad = getattr(terms, name).grad
         assert grad is not None and grad.abs().sum() > 0, name
     g = terms.gain(torch.arange(len(scene.train)))
     assert g[0] == 1.0  # the reference photo: exp(log_gain * 0)
+    assert terms.pose_rotation.grad[0].abs().sum() == 0  # and its pose holds the frame
 
 
 def test_the_flash_offset_moves_the_light_of_each_ray(small_import):
@@ -66,7 +67,7 @@ def test_the_flash_offset_moves_the_light_of_each_ray(small_import):
         """Stage 2's photometric loss on the same pixels and ray jitter, the flash at ``offset`` (None: no terms)."""
         terms = None if offset is None else CaptureTerms(
             len(scene.train), bank.camera_of_view,
-            CaptureTermsConfig(exposure=False, vignetting=False, ambient=False, flash_offset=offset))
+            CaptureTermsConfig(exposure=False, vignetting=False, ambient=False, pose=False, flash_offset=offset))
         torch.manual_seed(1)  # the samples' jitter
         return float(compute_loss(fields, bank, cfg, psf, 2, torch.Generator().manual_seed(0), fields.intensity,
                                   capture=terms).photometric)
@@ -101,7 +102,8 @@ def test_capture_flags(small_import):
 
     assert cfg_of("--capture-terms", "none").capture is None
     only = cfg_of("--capture-terms", "exposure,ambient").capture
-    assert (only.exposure, only.vignetting, only.ambient, only.learn_flash_offset) == (True, False, True, False)
+    assert (only.exposure, only.vignetting, only.ambient, only.pose, only.learn_flash_offset) == (
+        True, False, True, False, False)
     given = cfg_of("--flash-offset", "0.02,0,0").capture
     scale = read_normalization(scene_dir).scale
     assert given.flash_offset == pytest.approx((0.02 * scale, 0.0, 0.0)) and not given.learn_flash_offset
