@@ -61,7 +61,6 @@ class FieldConfig:
     mat_hidden: int = 64
     init_radius: float = 0.5
     activation: str = "gelu"
-    sdf_interp: str = "smoothstep"
     paper_sdf_layers: int = 5
     paper_sdf_width: int = 512
     paper_sdf_skip: int = 4
@@ -83,7 +82,6 @@ class FieldConfig:
         d = dict(d)
         d["sdf_levels"] = tuple(d.get("sdf_levels", FieldConfig.sdf_levels))
         d.setdefault("activation", "softplus")  # saved before the choice existed
-        d.setdefault("sdf_interp", "smoothstep")  # saved before the choice existed
         known = FieldConfig.__dataclass_fields__
         return FieldConfig(**{k: v for k, v in d.items() if k in known})
 
@@ -142,11 +140,14 @@ class DenseGrids(nn.Module):
     All levels live in one table and are read with one gather (not grid_sample), so
     that second derivatives exist: the SDF's normal is an autograd gradient, and the
     eikonal and shading losses differentiate through it.
+
+    Smoothstep rather than trilinear, though only trilinear reproduces a plane exactly: on the stool
+    scene (flat seat, thin legs; 300 s, 1 thread, the thin-parts flags) trilinear grids gave 34.85 dB
+    HR PSNR and 13.8 deg normal MAE against 35.92 dB and 13.2 deg with smoothstep.
     """
 
-    def __init__(self, levels: tuple[int, ...], channels: int, init_std: float = 1e-4, smooth: bool = True):
+    def __init__(self, levels: tuple[int, ...], channels: int, init_std: float = 1e-4):
         super().__init__()
-        self.smooth = smooth
         self.levels = tuple(levels)
         self.offsets = [0]
         for r in self.levels:
@@ -161,7 +162,7 @@ class DenseGrids(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         idx, ws = [], []
         for lvl, res in enumerate(self.levels):
-            c, w = _cell_corners(x, res, smooth=self.smooth)
+            c, w = _cell_corners(x, res, smooth=True)
             idx.append((c[..., 0] * res + c[..., 1]) * res + c[..., 2] + self.offsets[lvl])
             ws.append(w)
         feats = _gather_rows(self.table, torch.stack(idx, 1))  # (N, L, 8, C)
@@ -339,7 +340,7 @@ class GridSDF(nn.Module):
     def __init__(self, cfg: FieldConfig):
         super().__init__()
         self.r0 = cfg.init_radius
-        self.grids = DenseGrids(cfg.sdf_levels, cfg.sdf_channels, smooth=cfg.sdf_interp == "smoothstep")
+        self.grids = DenseGrids(cfg.sdf_levels, cfg.sdf_channels)
         self.head = _mlp(self.grids.out_dim + 3, cfg.sdf_hidden, 1, 3, cfg.activation)
         with torch.no_grad():
             self.head[-1].weight.mul_(0.01)

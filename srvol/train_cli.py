@@ -68,8 +68,6 @@ def add_parser(sub) -> None:
     p.add_argument("--flash-offset", metavar="X,Y,Z",
                    help="the flash's offset from the lens in the camera frame (x right, y down, z forward), in "
                         "the units of the capture's poses (SfM, --colmap, --transforms); given, it is not learned")
-    p.add_argument("--sdf-interp", choices=("smoothstep", "trilinear"),
-                   help="grid presets: interpolation of the SDF's feature grids (default: smoothstep)")
     p.add_argument("--capacity", type=float, default=1.0,
                    help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
                         "this factor -- for capacity studies (default 1: what the scene needs)")
@@ -187,10 +185,6 @@ def build_config(scene, args):
         changes["capture"] = capture
         changes["reasons"] = changes.get("reasons", cfg.reasons) + (
             f"real-capture terms (asked): {capture.describe() if capture else 'none'}",)
-    if args.sdf_interp is not None:
-        if cfg.fields.kind != "grid":
-            raise SrvolError("--sdf-interp applies to the grid presets (auto, fast), not paper")
-        changes["fields"] = replace(cfg.fields, sdf_interp=args.sdf_interp)
     if args.time_budget <= 0 and args.iters is None:
         raise SrvolError("--time-budget must be > 0 (or give --iters)")
     return replace(cfg, **changes)
