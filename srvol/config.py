@@ -73,6 +73,10 @@ class TrainConfig:
     lr_beta: float = 1e-2
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
+    lambda_smooth: float = 0.0
+    """Stage 1: weight of the normal-smoothness term, mean |n(x) - n(x + e)|^2 over points x on the
+    rendered surface, e ~ N(0, (finest SDF cell)^2 I); 0 = off (the paper has no such term)."""
+    batch_smooth: int = 256
     beta_anneal: float = 0.0
     """Stage 1: VolSDF's beta is bounded above by a cap that falls geometrically from its start (0.1)
     to BETA_CAP_END over this share of the run (time or iterations), then stays there; 0 = no cap

@@ -3,6 +3,7 @@
     L = L1(LR pixel estimate, input)  over in-mask pixels
       + lambda1 * mean (|grad d| - 1)^2  over random points and the ray samples
       + lambda2 * BCE(opacity, mask)     over in- and out-of-mask pixels
+      + lambda_s * mean |n(x) - n(x + e)|^2  over points on the rendered surface (optional; not the paper's)
 
 An LR pixel is estimated from the rays the stage's PSF sampler gives it
 (:func:`srvol.pixels.sample_pixels`). Stage 2 (geometry frozen) keeps the photometric term only.
@@ -25,6 +26,10 @@ from srvol.render import volume_render
 from srvol.types import PointLight, Rays
 
 
+SMOOTH_SPREAD_MLP = 0.01
+"""The normal-smoothness offset scale of MLP fields (no grid cell to take it from)."""
+
+
 @dataclass(frozen=True)
 class LossTerms:
     """One step's loss: ``total`` carries the graph; the terms are for the log. ``squared_error``
@@ -35,6 +40,7 @@ class LossTerms:
     photometric: float
     eikonal: float
     mask: float
+    smooth: float
     squared_error: float
     pixels: float
 
@@ -53,6 +59,26 @@ def photometric_l1(estimate: Tensor, batch: PixelBatch) -> Tensor:
 def eikonal(gradients: Tensor) -> Tensor:
     """mean (|grad d| - 1)^2 over the given SDF gradients (N, 3)."""
     return ((gradients.norm(dim=-1) - 1.0) ** 2).mean()
+
+
+def normal_smoothness(fields: SceneFields, points: Tensor, spread: float, gen: torch.Generator) -> Tensor:
+    """mean |n(x) - n(x + e)|^2 over ``points`` (N, 3), e ~ N(0, spread^2 I), n the unit SDF normal.
+
+    Ripples whose gradient still has unit length pass the eikonal term; they turn the normal over a
+    short distance, and this term sees that. Edges sharper than ``spread`` are rounded to it."""
+    e = torch.randn(points.shape, generator=gen).to(points) * spread
+    _, g = fields.sdf_and_gradient(torch.cat([points, points + e]), create_graph=True)
+    n = F.normalize(g, dim=-1)
+    a, b = n.chunk(2)
+    return ((a - b) ** 2).sum(-1).mean()
+
+
+def surface_points(rays: Rays, depth: Tensor, opacity: Tensor, n: int, gen: torch.Generator) -> Tensor:
+    """Up to ``n`` points (detached) where rays of opacity > 0.5 meet the surface (their expected depth)."""
+    hit = torch.nonzero(opacity.detach() > 0.5).squeeze(-1)
+    if len(hit) > n:
+        hit = hit[torch.randperm(len(hit), generator=gen)[:n].to(hit.device)]
+    return (rays.origins[hit] + depth.detach()[hit, None] * rays.directions[hit]).detach()
 
 
 def mask_bce(opacity_in: Tensor, mask_in: Tensor, opacity_out: Tensor) -> Tensor:
@@ -102,6 +128,7 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     total = photometric
     eik = torch.zeros(())
     mask_loss = torch.zeros(())
+    smooth = torch.zeros(())
     if train_geo:
         pts = (torch.rand(cfg.batch_eikonal, 3, generator=gen) * 2 - 1).to(rgb.device)
         _, g_rand = fields.sdf_and_gradient(pts, create_graph=True)
@@ -111,6 +138,12 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
             op_in = batch.estimate(vr.result.opacity[:n_pix_rays, None])[:, 0]
             mask_loss = mask_bce(op_in, batch.mask, vr.result.opacity[n_pix_rays:])
             total = total + cfg.lambda_mask * mask_loss
+        if cfg.lambda_smooth > 0:
+            pts = surface_points(Rays(rays.origins[:n_pix_rays], rays.directions[:n_pix_rays]),
+                                 vr.result.depth[:n_pix_rays], vr.result.opacity[:n_pix_rays], cfg.batch_smooth, gen)
+            if len(pts):
+                smooth = normal_smoothness(fields, pts, fields.finest_sdf_cell() or SMOOTH_SPREAD_MLP, gen)
+                total = total + cfg.lambda_smooth * smooth
     se, pixels = squared_error(rgb, batch)
     return LossTerms(total=total, photometric=float(photometric.detach()), eikonal=float(eik.detach()),
-                     mask=float(mask_loss.detach()), squared_error=se, pixels=pixels)
+                     mask=float(mask_loss.detach()), smooth=float(smooth.detach()), squared_error=se, pixels=pixels)

@@ -230,6 +230,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             rec = {"step": state.step, "stage": state.stage, "seconds": round(state.elapsed, 2),
                    "loss": round(float(terms.total.detach()), 6), "l1": round(terms.photometric, 6),
                    "eikonal": round(terms.eikonal, 6), "mask": round(terms.mask, 6),
+                   **({"smooth": round(terms.smooth, 6)} if cfg.lambda_smooth > 0 else {}),
                    "psnr": round(recent_psnr(recent), 3), "beta": round(float(fields.beta.detach()), 6)}
             with open(log_path, "a") as f:
                 f.write(json.dumps(rec) + "\n")

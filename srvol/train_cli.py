@@ -68,6 +68,9 @@ def add_parser(sub) -> None:
     p.add_argument("--flash-offset", metavar="X,Y,Z",
                    help="the flash's offset from the lens in the camera frame (x right, y down, z forward), in "
                         "the units of the capture's poses (SfM, --colmap, --transforms); given, it is not learned")
+    p.add_argument("--normal-smoothness", type=float, metavar="W",
+                   help="stage 1: weight of a term that keeps the normal from turning within one SDF grid cell "
+                        "(mean |n(x) - n(x + e)|^2 on the rendered surface; 0 = off)")
     p.add_argument("--capacity", type=float, default=1.0,
                    help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
                         "this factor -- for capacity studies (default 1: what the scene needs)")
@@ -180,6 +183,10 @@ def build_config(scene, args):
         changes["sampler"] = replace(cfg.sampler, n_refine=args.refine_samples)
         if cfg.stage2_sampler is not None:
             changes["stage2_sampler"] = replace(cfg.stage2_sampler, n_refine=args.refine_samples)
+    if args.normal_smoothness is not None:
+        if not (math.isfinite(args.normal_smoothness) and 0 <= args.normal_smoothness <= 10):
+            raise SrvolError(f"--normal-smoothness {args.normal_smoothness}: must be between 0 and 10")
+        changes["lambda_smooth"] = args.normal_smoothness
     capture = _capture_terms(scene, args, cfg.capture)
     if capture != cfg.capture:
         changes["capture"] = capture
