@@ -91,6 +91,15 @@ def write_table(rows: list[dict], scene: str, budget: int, parallel: int) -> Non
     write_result(RESULTS / "capture_terms_table.json", json.dumps(rows, indent=1) + "\n")
 
 
+def merged(rows: list[dict]) -> list[dict]:
+    """``rows`` with the committed rows of the arms not run this time (``--arms`` reruns its own), in arm order."""
+    path = RESULTS / "capture_terms_table.json"
+    old = json.loads(path.read_text()) if path.is_file() else []
+    by_terms = {r["capture_terms"]: r for r in old}
+    by_terms.update({r["capture_terms"]: r for r in rows})
+    return [by_terms[a.terms] for a in arms() if a.terms in by_terms]
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.bench_capture_terms")
     p.add_argument("--scene", default="bunny", help="the capture bench_import made (default bunny)")
@@ -104,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     todo = arms() if not args.arms else [a for a in arms() if a.terms in args.arms.split(";")]
     with ThreadPoolExecutor(max_workers=max(1, args.parallel)) as pool:
         rows = list(pool.map(lambda a: run_arm(a, scene, gt, args.budget), todo))
-    write_table(rows, args.scene, args.budget, args.parallel)
+    write_table(merged(rows), args.scene, args.budget, args.parallel)
     print(f"wrote {RESULTS / 'capture_terms_table.md'}")
     return 0
 

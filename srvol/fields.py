@@ -122,7 +122,9 @@ def _cell_corners(x: Tensor, res: int, smooth: bool) -> tuple[Tensor, Tensor]:
     ``smooth``: smoothstep weights (C1 across cells: continuous normals) instead of trilinear.
     """
     u = ((x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (res - 1)).clamp(0.0, res - 1 - 1e-4)
-    i0 = u.detach().floor()
+    # a NaN point (a diverged step) reads corner 0 with NaN weights: the loss turns NaN and training
+    # rolls back, instead of indexing out of the table
+    i0 = torch.nan_to_num(u.detach().floor(), nan=0.0)
     f = u - i0
     if smooth:
         f = f * f * (3.0 - 2.0 * f)
