@@ -63,8 +63,9 @@ def add_parser(sub) -> None:
                         "samples' spacing are found (default 0)")
     p.add_argument("--capture-terms", metavar="LIST",
                    help="real-capture terms to learn: 'all', 'none' or a comma list of exposure (a gain per "
-                        "photo), flash (the flash's offset from the lens), vignetting (per camera), ambient "
-                        "(default: auto all for a scene made by 'srvol import', none otherwise)")
+                        "photo), flash (the flash's offset from the lens), vignetting (per camera), ambient, pose "
+                        "(per-photo pose refinement) (default: auto exposure,flash,vignetting for a scene made by "
+                        "'srvol import', none otherwise)")
     p.add_argument("--flash-offset", metavar="X,Y,Z",
                    help="the flash's offset from the lens in the camera frame (x right, y down, z forward), in "
                         "the units of the capture's poses (SfM, --colmap, --transforms); given, it is not learned")
@@ -113,9 +114,9 @@ def _capture_terms(scene, args, default):
     if args.capture_terms is None:
         if offset is None:
             return default
-        names = set(TERM_NAMES) if default is None else {
+        names = {"flash"} if default is None else {
             n for n, on in (("exposure", default.exposure), ("vignetting", default.vignetting),
-                            ("ambient", default.ambient)) if on} | {"flash"}
+                            ("ambient", default.ambient), ("pose", default.pose)) if on} | {"flash"}
         return terms_config(names, offset)
     words = {w.strip() for w in args.capture_terms.split(",") if w.strip()}
     if words == {"none"}:

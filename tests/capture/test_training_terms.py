@@ -13,7 +13,7 @@ import torch
 
 from srvol.capture.frame import read_normalization
 from srvol.capture.terms import CaptureTerms, CaptureTermsConfig
-from srvol.config import TrainConfig, auto_config
+from srvol.config import AUTO_CAPTURE_TERMS, TrainConfig, auto_config
 from srvol.data import load_scene
 from srvol.errors import SrvolError
 from srvol.fields import SceneFields
@@ -31,7 +31,7 @@ def _small(cfg: TrainConfig, iters: int) -> TrainConfig:
 
 def test_auto_turns_the_terms_on_for_an_imported_scene_only(small_import, default_scene):
     imported = auto_config(load_scene(small_import[0]), "gaussian", 60.0)
-    assert imported.capture == CaptureTermsConfig()
+    assert imported.capture == AUTO_CAPTURE_TERMS and imported.capture.learn_flash_offset
     assert any("real-capture terms on" in r for r in imported.reasons)
     assert auto_config(load_scene(default_scene), "gaussian", 60.0).capture is None
     assert TrainConfig.from_json(json.loads(json.dumps(imported.to_json()))).capture == imported.capture
@@ -42,7 +42,7 @@ def test_every_term_gets_a_gradient_and_the_reference_photo_keeps_gain_one(small
     cfg = _small(auto_config(scene, "gaussian", 60.0), 1)
     bank = PixelBank(scene, torch.device("cpu"))
     fields = SceneFields(cfg.fields, learn_intensity=True)
-    terms = CaptureTerms(len(scene.train), bank.camera_of_view, cfg.capture)
+    terms = CaptureTerms(len(scene.train), bank.camera_of_view, CaptureTermsConfig())  # all of them
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
     loss = compute_loss(fields, bank, cfg, psf, 1, torch.Generator().manual_seed(0), fields.intensity,
                         capture=terms)
