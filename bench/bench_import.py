@@ -161,9 +161,9 @@ def train_eval_export(name: str, budget: int) -> dict:
 def write_train_table(row: dict) -> None:
     cols = [k for k in row if k not in ("seconds", "commands")]
     lines = ["# srvol import -> train -> eval --gt -> export --frame capture", "",
-             "The imported capture trained as it is (`auto`; the real-capture terms -- per-photo exposure, flash "
-             "offset, vignetting, ambient, pose refinement -- are not in training yet), scored in the GT frame "
-             "after one per-channel gain. Issue targets after 600 s: HR PSNR >= 28 dB, normal MAE <= 8 deg, "
+             "The imported capture trained by `auto` (with the real-capture terms it turns on for an imported "
+             "scene: per-photo exposure, flash offset, vignetting), scored in the GT frame after one per-channel "
+             "gain. Issue targets after 600 s: HR PSNR >= 28 dB, normal MAE <= 8 deg, "
              "relit PSNR >= 26 dB, Chamfer <= 0.01; export_fit_to_points (mean distance of the sparse object "
              "points to the exported mesh in the capture frame, in object sizes) <= 0.01.", "",
              "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols),
