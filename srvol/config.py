@@ -8,9 +8,7 @@
   :func:`rays_per_step`) and the words ``srvol train`` prints for it (``describe_*``);
 * :class:`RunConfig`, the whole config.json (the run's TrainConfig and what it remembers of
   its scene), written and read by one pair of functions: :func:`write_run_config` and
-  :func:`read_run_config`.
-
-Readers of a run (eval, report, export, relight) import this module, never the training loop.
+  :func:`read_run_config`. Readers of a run (eval, report, export, relight) import this module, never the training loop.
 """
 from __future__ import annotations
 
@@ -21,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from srvol.capture.frame import read_normalization
 from srvol.capture.terms import CaptureTermsConfig
 from srvol.data import Scene
 from srvol.errors import SrvolError
@@ -73,9 +72,7 @@ class TrainConfig:
     lr_beta: float = 1e-2
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
-    lambda_smooth: float = 0.0
-    """Stage 1: weight of the normal-smoothness term, mean |n(x) - n(x + e)|^2 over points x on the
-    rendered surface, e ~ N(0, (finest SDF cell)^2 I); 0 = off (the paper has no such term)."""
+    lambda_smooth: float = 0.0  # stage 1: weight of mean |n(x) - n(x + e)|^2 on the surface (losses.py); 0 = off
     batch_smooth: int = 256
     beta_anneal: float = 0.0
     """Stage 1: VolSDF's beta is bounded above by a cap that falls geometrically from its start (0.1)
@@ -85,9 +82,7 @@ class TrainConfig:
     silhouette_rays: float = 0.0
     """Share of the out-of-mask rays drawn from each view's mask bounding box (+2 px), where the mask
     carves gaps between legs or under a seat; the rest from anywhere outside the mask."""
-    capture: CaptureTermsConfig | None = None
-    """Real-capture terms (per-photo exposure, flash offset, vignetting, ambient; srvol.capture.terms),
-    None = the co-located model of DESIGN.md section 3 as it is (calibrated and synthetic scenes)."""
+    capture: CaptureTermsConfig | None = None  # real-capture terms (srvol.capture.terms); None: DESIGN.md sec. 3
     iters: int = 0
     """Total iterations of both stages; 0 = run until ``time_budget``."""
     time_budget: float = 600.0
@@ -138,14 +133,12 @@ stage-2 step takes 2.1x less time (bench/results/stage2_table.md)."""
 
 
 AUTO_CAPTURE_TERMS = CaptureTermsConfig(exposure=True, vignetting=True, ambient=False, pose=False)
-"""The real-capture terms auto turns on for an imported scene (the flash offset learned)."""
 
 AUTO_STAGE2_FRACTION = 0.3
 """auto's share of the time budget for stage 2 (BRDF refinement on frozen geometry)."""
 
 THIN_PARTS_RECIPE = ("--beta-anneal", "0.3", "--refine-samples", "8", "--silhouette-rays", "0.5")
-"""The flags that turned the stool scene from a fog into a stool (README); not auto's default yet: with
-them the default scene's stage 2 stalled (35.1 dB HR PSNR vs 37.8-38.2 at 600 s, 1 thread)."""
+# the flags that turned the stool from a fog into a stool (README); not auto's default: bumpy stalled with them
 
 
 def fast_config(sr: str = "gaussian", psf_samples: int = 4) -> TrainConfig:
@@ -264,22 +257,13 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                       time_budget=time_budget)
     reasons.append(f"{n_in} in-mask training pixels; {batch_in} per step x {ns} rays "
                    f"(stage 2: {rays_per_step(cfg, 2)} rays per step)")
-    if is_imported(scene):
+    if read_normalization(scene.root) is not None:  # imported by srvol import
         cfg = replace(cfg, capture=AUTO_CAPTURE_TERMS)
-        reasons.append(f"real-capture terms on ({AUTO_CAPTURE_TERMS.describe()}): the scene was imported from "
-                       "photos (scene.json has a normalization), which carry auto-exposure, a flash beside the lens "
-                       "and lens vignetting. Ambient and pose refinement stay off: on the bunny capture (300 s, one "
-                       "run each) turning them off raised HR PSNR by 0.37 and 0.31 dB and cut the normal error by "
-                       "2.5 and 2.9 deg, while exposure gains bought 1.5 dB (capture_terms_table.md)")
+        reasons.append(f"real-capture terms on ({AUTO_CAPTURE_TERMS.describe()}): an imported scene; ambient, pose "
+                       "off: each cost 0.3-0.4 dB, 2.5-2.9 deg normals on the bunny capture (capture_terms_table.md)")
     reasons.append(f"time budget {time_budget:.0f} s for both stages")
     return replace(cfg, reasons=tuple(reasons))
 
-
-def is_imported(scene: Scene) -> bool:
-    """Whether ``scene`` was made by ``srvol import`` (its scene.json records the capture's normalization)."""
-    from srvol.capture.frame import read_normalization
-
-    return read_normalization(scene.root) is not None
 
 
 def psf_sampler_of_stage(cfg: TrainConfig, stage: int) -> str:
