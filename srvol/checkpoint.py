@@ -142,6 +142,12 @@ def _read_checkpoint(ckpt_dir: Path) -> tuple[TrainState, dict] | None:
     return None
 
 
+def freeze_geometry(fields, capture=None) -> None:
+    """Stage 2: the SDF, beta and (with capture terms) the refined poses stop learning."""
+    for p in fields.geometry_parameters() + (capture.pose_parameters() if capture is not None else []):
+        p.requires_grad_(False)
+
+
 def load_checkpoint(ckpt_dir: Path, fields, capture=None) -> Checkpoint | None:
     """Restore ``fields`` (and the ``capture`` terms, when the run has them) in place from the last
     checkpoint; None when there is none."""
@@ -157,8 +163,7 @@ def load_checkpoint(ckpt_dir: Path, fields, capture=None) -> Checkpoint | None:
     except (KeyError, RuntimeError, TypeError) as e:
         raise SrvolError(f"{ckpt_dir}: checkpoint does not match the run's fields ({e.__class__.__name__})") from None
     if state.stage == 2:
-        for p in fields.geometry_parameters() + (capture.pose_parameters() if capture is not None else []):
-            p.requires_grad_(False)
+        freeze_geometry(fields, capture)
     return ck
 
 

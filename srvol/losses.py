@@ -115,8 +115,8 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     if capture is not None:
         origins, directions = capture.refine_rays(rays.origins, rays.directions, ray_view)
         rays = Rays(origins, directions)
-        v = batch.ray_view
-        light_at = torch.cat([capture.flash_position(origins[:n_pix_rays], bank.W2C_R[v]), origins[n_pix_rays:]])
+        w2c = bank.R_T[batch.ray_view].transpose(1, 2)
+        light_at = torch.cat([capture.flash_position(origins[:n_pix_rays], w2c), origins[n_pix_rays:]])
     light = PointLight(position=light_at, intensity=intensity)
     shade_rays = torch.arange(len(rays), device=rays.origins.device) < n_pix_rays
     vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=train_geo,

@@ -85,7 +85,6 @@ class PixelBank:
         self.view = torch.from_numpy(np.concatenate(vid)).long().to(device)
         self.ij = torch.from_numpy(np.concatenate(ij)).float().to(device)
         self.sizes = torch.tensor(sizes, dtype=torch.long, device=device)
-        self.W2C_R = W2C[:, :3, :3].contiguous().to(device)
         hw = self.sizes[self.view].float()  # (pixels, 2) = (H, W) of each pixel's view
         self.r2 = radial2(self.ij + 0.5, hw[:, 1], hw[:, 0])
         by_size = {s: k for k, s in enumerate(dict.fromkeys(sizes))}

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from srvol.atomic import atomic_write_text
 from srvol.capture.terms import CaptureTerms
-from srvol.checkpoint import TrainState, load_checkpoint, save_checkpoint, save_snapshot, write_model
+from srvol.checkpoint import TrainState, freeze_geometry, load_checkpoint, save_checkpoint, save_snapshot, write_model
 from srvol.config import TrainConfig, rays_per_step
 from srvol.data import Scene
 from srvol.errors import SrvolError
@@ -198,8 +198,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                 break
         if want_stage != state.stage:
             state.stage = want_stage
-            for p in fields.geometry_parameters() + (capture.pose_parameters() if capture is not None else []):
-                p.requires_grad_(False)
+            freeze_geometry(fields, capture)
             opts = make_optimizers(fields, cfg, 2, capture)
             recent.clear()  # the logged PSNR speaks of one stage
             say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "

@@ -114,10 +114,7 @@ def _capture_terms(scene, args, default):
     if args.capture_terms is None:
         if offset is None:
             return default
-        names = {"flash"} if default is None else {
-            n for n, on in (("exposure", default.exposure), ("vignetting", default.vignetting),
-                            ("ambient", default.ambient), ("pose", default.pose)) if on} | {"flash"}
-        return terms_config(names, offset)
+        return terms_config((default.names() if default is not None else set()) | {"flash"}, offset)
     words = {w.strip() for w in args.capture_terms.split(",") if w.strip()}
     if words == {"none"}:
         if offset is not None:

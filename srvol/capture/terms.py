@@ -10,7 +10,7 @@ DESIGN.md section 3, each a small parameter:
 * a weak **ambient** term: ambient * albedo (RGB), added to the flash's radiance;
 * a per-photo **pose refinement**: a small rotation about the camera centre (axis-angle) and a shift
   of the centre, in the scene frame, learned at a small rate; the reference photo is fixed (it holds
-  the frame), and each ray of a photo (and its flash) moves with it.
+  the frame), and each ray of a photo moves with it (its flash with the shift).
 
 A pixel then reads  gain[view] * vignette(r) * (L_flash(x; light at centre + R^T offset) + ambient * albedo(x)),
 exactly how ``srvol synth --capture`` makes its photos before noise, clipping and sRGB
@@ -54,6 +54,12 @@ class CaptureTermsConfig:
                                   flash_offset=tuple(float(v) for v in off) if off is not None else None,
                                   learn_flash_offset=bool(d.get("learn_flash_offset", True)),
                                   reference_view=int(d.get("reference_view", 0)))
+
+    def names(self) -> set[str]:
+        """The terms that are on, as ``--capture-terms`` names them (the inverse of :func:`terms_config`)."""
+        return {n for n, on in (("exposure", self.exposure), ("vignetting", self.vignetting), ("ambient", self.ambient),
+                                ("pose", self.pose), ("flash", self.flash_offset is not None or self.learn_flash_offset))
+                if on}
 
     def describe(self) -> str:
         """The terms that are on, in words (``srvol train`` prints it)."""
@@ -154,7 +160,7 @@ class CaptureTerms(nn.Module):
 
     def values(self, view_names: list[str]) -> dict:
         """The learned values, for RUN/capture_terms.json."""
-        gains = torch.exp(self.log_gain * self.gain_free).detach().cpu()
+        gains = self.gain(torch.arange(len(view_names), device=self.log_gain.device)).detach().cpu()
         turn = torch.rad2deg((self.pose_rotation * self.gain_free[:, None]).detach().norm(dim=-1)).cpu()
         shift = (self.pose_shift * self.gain_free[:, None]).detach().norm(dim=-1).cpu()
         return {"pose_rotation_deg": {n: round(float(v), 4) for n, v in zip(view_names, turn)},
