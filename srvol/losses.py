@@ -19,10 +19,12 @@ from torch import Tensor
 
 from srvol.capture.terms import CaptureTerms
 from srvol.config import TrainConfig, sampler_of_stage
+from srvol.distributed import SINGLE, Shard
+from srvol.errors import SrvolError
 from srvol.fields import SceneFields
 from srvol.pixels import PixelBank, PixelBatch, sample_pixels
 from srvol.psf import PsfSampler
-from srvol.render import volume_render
+from srvol.render import RayRows, volume_render
 from srvol.types import PointLight, Rays
 
 
@@ -50,15 +52,18 @@ def psnr_of(squared_error: float, pixels: float) -> float:
     return float(-10 * math.log10(max(squared_error / max(pixels, 1.0), 1e-10)))
 
 
-def photometric_l1(estimate: Tensor, batch: PixelBatch) -> Tensor:
-    """Mean L1 over the batch's foreground pixels (a lattice patch may reach past the silhouette)."""
+def photometric_l1(estimate: Tensor, batch: PixelBatch, count: float | None = None) -> Tensor:
+    """Mean L1 over the batch's foreground pixels (a lattice patch may reach past the silhouette);
+    ``count``: divide by this many pixels instead (all ranks' foreground pixels)."""
     fg = batch.mask
-    return ((estimate - batch.target).abs().mean(-1) * fg).sum() / fg.sum().clamp_min(1.0)
+    per_pixel = (estimate - batch.target).abs().mean(-1) * fg
+    return per_pixel.sum() / (fg.sum().clamp_min(1.0) if count is None else max(count, 1.0))
 
 
-def eikonal(gradients: Tensor) -> Tensor:
-    """mean (|grad d| - 1)^2 over the given SDF gradients (N, 3)."""
-    return ((gradients.norm(dim=-1) - 1.0) ** 2).mean()
+def eikonal(gradients: Tensor, count: float | None = None) -> Tensor:
+    """mean (|grad d| - 1)^2 over the given SDF gradients (N, 3) (``count``: sum / count)."""
+    sq = (gradients.norm(dim=-1) - 1.0) ** 2
+    return sq.mean() if count is None else sq.sum() / max(count, 1.0)
 
 
 def normal_smoothness(fields: SceneFields, points: Tensor, spread: float, gen: torch.Generator) -> Tensor:
@@ -81,11 +86,14 @@ def surface_points(rays: Rays, depth: Tensor, opacity: Tensor, n: int, gen: torc
     return (rays.origins[hit] + depth.detach()[hit, None] * rays.directions[hit]).detach()
 
 
-def mask_bce(opacity_in: Tensor, mask_in: Tensor, opacity_out: Tensor) -> Tensor:
+def mask_bce(opacity_in: Tensor, mask_in: Tensor, opacity_out: Tensor, count: float | None = None) -> Tensor:
     """BCE of accumulated opacity against the mask: in-mask pixels (their PSF estimates, target the
-    mask value) and rays outside the silhouette (target 0)."""
+    mask value) and rays outside the silhouette (target 0). ``count``: sum / count, not the mean."""
     op = torch.cat([opacity_in, opacity_out]).clamp(1e-4, 1 - 1e-4)
-    return F.binary_cross_entropy(op, torch.cat([mask_in, torch.zeros_like(opacity_out)]))
+    target = torch.cat([mask_in, torch.zeros_like(opacity_out)])
+    if count is None:
+        return F.binary_cross_entropy(op, target)
+    return F.binary_cross_entropy(op, target, reduction="sum") / max(count, 1.0)
 
 
 def squared_error(estimate: Tensor, batch: PixelBatch) -> tuple[float, float]:
@@ -97,19 +105,29 @@ def squared_error(estimate: Tensor, batch: PixelBatch) -> tuple[float, float]:
 
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
                  gen: torch.Generator, intensity: Tensor, progress: float = 1.0,
-                 capture: CaptureTerms | None = None) -> LossTerms:
+                 capture: CaptureTerms | None = None, shard: Shard = SINGLE) -> LossTerms:
     """L1 on in-mask pixels (PSF estimates) + lambda_e eikonal + lambda_m mask BCE (stage 1 only).
     ``progress`` in [0, 1] (share of the run done) selects the PSF rays per pixel (psf_warmup).
     ``capture``: each ray is lit by its photo's flash, and the pixel estimates pass through the
-    photo's exposure, vignetting and ambient term before they meet the photo."""
+    photo's exposure, vignetting and ambient term before they meet the photo. ``shard``: this
+    rank's share of the step; each term is divided by its count over all ranks, so the ranks'
+    gradients sum to the whole step's (:mod:`srvol.distributed`)."""
     train_geo = stage == 1
-    batch = sample_pixels(bank, cfg, psf, stage, gen, progress)
+    whole = sample_pixels(bank, cfg, psf, stage, gen, progress)
+    g_lo, g_hi = shard.span(whole.weights.shape[0])
+    batch = whole.groups(g_lo, g_hi)
     rays, ray_view = batch.rays, batch.ray_view
+    R = whole.weights.shape[2]
+    rows = [torch.arange(g_lo * R, g_hi * R)]  # the rank's rays among the whole step's
     use_mask = train_geo and bank.has_masks and len(bank.outside) > 0
     if use_mask:
-        out = bank.sample(cfg.batch_out, False, psf, 1, gen, near_share=cfg.silhouette_rays)
+        o_lo, o_hi = shard.span(cfg.batch_out)
+        out = bank.sample(cfg.batch_out, False, psf, 1, gen, near_share=cfg.silhouette_rays).groups(o_lo, o_hi)
         rays = Rays(torch.cat([rays.origins, out.rays.origins]), torch.cat([rays.directions, out.rays.directions]))
         ray_view = torch.cat([ray_view, out.ray_view])
+        rows.append(whole.n_rays + torch.arange(o_lo, o_hi))
+    jitter = True if shard.world == 1 else RayRows(torch.cat(rows).to(rays.origins.device),
+                                                   whole.n_rays + (cfg.batch_out if use_mask else 0))
     n_pix_rays = batch.n_rays
     light_at = rays.origins  # co-located: at each ray's camera
     if capture is not None:
@@ -119,31 +137,43 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
         light_at = torch.cat([capture.flash_position(origins[:n_pix_rays], w2c), origins[n_pix_rays:]])
     light = PointLight(position=light_at, intensity=intensity)
     shade_rays = torch.arange(len(rays), device=rays.origins.device) < n_pix_rays
-    vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=train_geo,
+    vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=train_geo, jitter=jitter,
                        shade_rays=shade_rays, with_albedo=capture is not None)
     rgb = batch.estimate(vr.result.rgb[:n_pix_rays])
     if capture is not None:
         rgb = capture.apply(rgb, batch.estimate(vr.albedo[:n_pix_rays]), batch.view, batch.r2)
-    photometric = photometric_l1(rgb, batch)
-    total = photometric
     eik = torch.zeros(())
     mask_loss = torch.zeros(())
     smooth = torch.zeros(())
     if train_geo:
-        pts = (torch.rand(cfg.batch_eikonal, 3, generator=gen) * 2 - 1).to(rgb.device)
+        e_lo, e_hi = shard.span(cfg.batch_eikonal)
+        pts = (torch.rand(cfg.batch_eikonal, 3, generator=gen) * 2 - 1)[e_lo:e_hi].to(rgb.device)
         _, g_rand = fields.sdf_and_gradient(pts, create_graph=True)
-        eik = eikonal(torch.cat([g_rand, vr.sdf_gradients]))
+        gradients = torch.cat([g_rand, vr.sdf_gradients])
+    else:
+        gradients = torch.zeros(0, 3)
+    n_mask = batch.n_pixels + len(rays) - n_pix_rays if use_mask else 0
+    fg_count, eik_count, mask_count = shard.total(float(batch.mask.sum()), len(gradients), n_mask)
+    photometric = photometric_l1(rgb, batch, fg_count)
+    total = photometric
+    if train_geo:
+        eik = eikonal(gradients, eik_count)
         total = total + cfg.lambda_eikonal * eik
         if use_mask:
             op_in = batch.estimate(vr.result.opacity[:n_pix_rays, None])[:, 0]
-            mask_loss = mask_bce(op_in, batch.mask, vr.result.opacity[n_pix_rays:])
+            mask_loss = mask_bce(op_in, batch.mask, vr.result.opacity[n_pix_rays:], mask_count)
             total = total + cfg.lambda_mask * mask_loss
         if cfg.lambda_smooth > 0:
+            if shard.world > 1:
+                raise SrvolError("--normal-smoothness does not run with --distributed")
             pts = surface_points(Rays(rays.origins[:n_pix_rays], rays.directions[:n_pix_rays]),
                                  vr.result.depth[:n_pix_rays], vr.result.opacity[:n_pix_rays], cfg.batch_smooth, gen)
             if len(pts):
                 smooth = normal_smoothness(fields, pts, fields.finest_sdf_cell() or SMOOTH_SPREAD_MLP, gen)
                 total = total + cfg.lambda_smooth * smooth
     se, pixels = squared_error(rgb, batch)
-    return LossTerms(total=total, photometric=float(photometric.detach()), eikonal=float(eik.detach()),
-                     mask=float(mask_loss.detach()), smooth=float(smooth.detach()), squared_error=se, pixels=pixels)
+    # the logged figures speak of the whole step: sums over the ranks (each rank's share of a mean)
+    se, pixels, ph, ek, mk = shard.total(se, pixels, float(photometric.detach()), float(eik.detach()),
+                                         float(mask_loss.detach()))
+    return LossTerms(total=total, photometric=ph, eikonal=ek, mask=mk, smooth=float(smooth.detach()),
+                     squared_error=se, pixels=pixels)

@@ -48,6 +48,14 @@ class PixelBatch:
     def n_pixels(self) -> int:
         return self.weights.shape[0] * self.weights.shape[1]
 
+    def groups(self, lo: int, hi: int) -> "PixelBatch":
+        """Groups [lo, hi) of the batch, with their pixels and rays (a data-parallel rank's share)."""
+        G, P, R = self.weights.shape
+        return PixelBatch(rays=self.rays[lo * R:hi * R], weights=self.weights[lo:hi],
+                          target=self.target[lo * P:hi * P], mask=self.mask[lo * P:hi * P],
+                          view=self.view[lo * P:hi * P], r2=self.r2[lo * P:hi * P],
+                          ray_view=self.ray_view[lo * R:hi * R])
+
     def estimate(self, per_ray: Tensor) -> Tensor:
         """Per-ray values (G * R, C) -> per-pixel PSF estimates (G * P, C)."""
         G, P, R = self.weights.shape

@@ -71,15 +71,45 @@ def render_weight_from_density(sigma: Tensor, deltas: Tensor) -> Tensor:
     return trans * alpha
 
 
-def sample_from_weights(t: Tensor, weights: Tensor, n: int, generator: torch.Generator | None = None) -> Tensor:
+@dataclass(frozen=True)
+class RayRows:
+    """Rays that are rows ``rows`` of a batch of ``total`` rays (a data-parallel rank's share).
+
+    Their random sample offsets are those rows of one (total, n) draw from the global RNG, so the
+    ranks together place exactly the samples one process rendering the whole batch would."""
+
+    rows: Tensor
+    total: int
+
+    def uniform(self, n: int, like: Tensor) -> Tensor:
+        return torch.rand(self.total, n, dtype=like.dtype, device=like.device)[self.rows]
+
+
+Jitter = bool | RayRows
+"""Random offsets of the samples along each ray: True (fresh draws), False (mid-points) or a
+rank's rows of a whole batch's draws."""
+
+
+def _uniform(n_rays: int, n: int, jitter: Jitter, like: Tensor) -> Tensor:
+    """(n_rays, n) offsets in [0, 1): random, 0.5 without jitter, or a rank's rows."""
+    if isinstance(jitter, RayRows):
+        return jitter.uniform(n, like)
+    if jitter:
+        return torch.rand(n_rays, n, dtype=like.dtype, device=like.device)
+    return torch.full((n_rays, n), 0.5, dtype=like.dtype, device=like.device)
+
+
+def sample_from_weights(t: Tensor, weights: Tensor, n: int, generator: torch.Generator | None = None,
+                        rows: RayRows | None = None) -> Tensor:
     """(N, n) distances drawn by inverse CDF from piecewise-constant weights on bins centred at ``t``."""
     pdf = weights + 1e-5
     pdf = pdf / pdf.sum(-1, keepdim=True)
     cdf = torch.cat([torch.zeros_like(pdf[:, :1]), torch.cumsum(pdf, -1)], -1)
     half = 0.5 * (t[:, 1:2] - t[:, 0:1])
     edges = torch.cat([t - half, t[:, -1:] + half], -1)
-    u = (torch.arange(n, dtype=t.dtype, device=t.device) + torch.rand(t.shape[0], n, generator=generator,
-                                                                       device=t.device, dtype=t.dtype)) / n
+    off = rows.uniform(n, t) if rows is not None else torch.rand(t.shape[0], n, generator=generator,
+                                                                    device=t.device, dtype=t.dtype)
+    u = (torch.arange(n, dtype=t.dtype, device=t.device) + off) / n
     idx = torch.searchsorted(cdf, u.contiguous(), right=True).clamp(1, cdf.shape[1] - 1)
     c0, c1 = cdf.gather(1, idx - 1), cdf.gather(1, idx)
     e0, e1 = edges.gather(1, idx - 1), edges.gather(1, idx)
@@ -87,10 +117,9 @@ def sample_from_weights(t: Tensor, weights: Tensor, n: int, generator: torch.Gen
     return e0 + frac * (e1 - e0)
 
 
-def _stratified(near: Tensor, far: Tensor, n: int, jitter: bool) -> Tensor:
+def _stratified(near: Tensor, far: Tensor, n: int, jitter: Jitter) -> Tensor:
     steps = torch.arange(n, dtype=near.dtype, device=near.device)
-    off = torch.rand(near.shape[0], n, dtype=near.dtype, device=near.device) if jitter else torch.full(
-        (near.shape[0], n), 0.5, dtype=near.dtype, device=near.device)
+    off = _uniform(near.shape[0], n, jitter, near)
     return near[:, None] + (far - near)[:, None] * (steps + off) / n
 
 
@@ -137,7 +166,7 @@ def refine_first_possible_crossing(t: Tensor, d: Tensor, sdf_at, n: int) -> tupl
     return merged_t, torch.cat([d, sdf_at(tr)], -1).gather(1, order)
 
 
-def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitter: bool) -> RaySamples:
+def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitter: Jitter) -> RaySamples:
     """Locate the surface without gradients, then place the gradient-carrying samples.
 
     Rays that cross the zero level get their importance samples spread over +-4 beta around the
@@ -160,7 +189,8 @@ def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitte
                 tc, d, lambda tr: fields.sdf(rays.at(tr).reshape(-1, 3)).reshape(tr.shape), cfg.n_refine)
         root, has = first_crossing(tl, dl)
         if cfg.n_importance:
-            from_weights = sample_from_weights(tc, w, cfg.n_importance)
+            from_weights = sample_from_weights(tc, w, cfg.n_importance,
+                                               rows=jitter if isinstance(jitter, RayRows) else None)
             spread = 4.0 * beta.clamp_min(1e-3)
             band = _stratified(root - spread, root + spread, cfg.n_importance, jitter)
             parts.append(torch.where(has[:, None], band, from_weights))
@@ -172,7 +202,7 @@ def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitte
 
 
 def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: SamplerConfig,
-                  train_geometry: bool, jitter: bool = True, shade_rays: Tensor | None = None,
+                  train_geometry: bool, jitter: Jitter = True, shade_rays: Tensor | None = None,
                   min_weight: float = 1e-4, skip_empty: bool = False, with_albedo: bool = False) -> VolumeRender:
     """Render rays under ``light`` (position (3,) or (N, 3) per ray).
 

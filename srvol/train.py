@@ -20,6 +20,7 @@ from srvol.capture.terms import CaptureTerms
 from srvol.checkpoint import TrainState, freeze_geometry, load_checkpoint, save_checkpoint, save_snapshot, write_model
 from srvol.config import TrainConfig, rays_per_step
 from srvol.data import Scene
+from srvol.distributed import SINGLE, Shard
 from srvol.errors import SrvolError
 from srvol.fields import BETA_INIT, SceneFields
 from srvol.losses import compute_loss, psnr_of
@@ -86,11 +87,12 @@ def set_learning_rate(opts, progress: float, cfg: TrainConfig, scale: float) -> 
             g["lr"] = g["base_lr"] * decay * scale
 
 
-def take_step(opts: list[torch.optim.Optimizer], loss: torch.Tensor) -> None:
-    """One optimiser step on ``loss``."""
+def take_step(opts: list[torch.optim.Optimizer], loss: torch.Tensor, shard: Shard = SINGLE) -> None:
+    """One optimiser step on ``loss`` (data-parallel: on the gradients summed over the ranks)."""
     for o in opts:
         o.zero_grad(set_to_none=True)
     loss.backward()
+    shard.sum_gradients([p for o in opts for g in o.param_groups for p in g["params"]])
     for o in opts:
         o.step()
 
@@ -139,8 +141,11 @@ class TrainSummary:
 
 
 def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, progress: bool = True,
-          say=print) -> TrainSummary:
-    """Train on ``scene`` into ``run_dir`` (config.json, checkpoints/, log.jsonl, model.pt)."""
+          say=print, shard: Shard = SINGLE) -> TrainSummary:
+    """Train on ``scene`` into ``run_dir`` (config.json, checkpoints/, log.jsonl, model.pt).
+    ``shard``: this process's rank of a data-parallel run (rank 0 alone writes and speaks)."""
+    main = shard.is_main
+    say = say if main else (lambda *_: None)
     device = torch.device(cfg.device)
     run_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
@@ -163,11 +168,11 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         gen.set_state(ck.generator_state)
         say(f"resuming at step {state.step} (stage {state.stage}, {state.elapsed:.0f} s trained)")
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
-    budget = cfg.time_budget if cfg.iters == 0 else 0.0
+    budget, = shard.agree(cfg.time_budget if cfg.iters == 0 else 0.0)  # rank 0's: one budget binds all ranks
     stage2_at = int(cfg.iters * (1 - cfg.stage2_fraction)) if cfg.iters else None
     log_path = run_dir / "log.jsonl"
     t_start = time.time() - state.elapsed
-    bar = tqdm(total=cfg.iters or int(budget), disable=not progress, unit="it" if cfg.iters else "s",
+    bar = tqdm(total=cfg.iters or int(budget), disable=not (progress and main), unit="it" if cfg.iters else "s",
                desc="train", initial=state.step if cfg.iters else int(state.elapsed))
     recent: deque[tuple[float, float]] = deque(maxlen=cfg.log_every)  # (squared error, pixels) of the last steps
     last_good_step = state.step
@@ -175,7 +180,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     step_seconds = 0.0  # the last step's duration: the estimate of the next one's
     stage2_skipped = False
     while True:
-        elapsed = time.time() - t_start
+        # rank 0's clock for every rank: all agree when stage 2 starts and when the budget ends
+        elapsed, step_seconds = shard.agree(time.time() - t_start, step_seconds)
         if cfg.iters:
             if state.step >= cfg.iters:
                 break
@@ -205,8 +211,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                 f"({rays_per_step(cfg, 2)} rays per step)")
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         intensity = fixed_I if fixed_I is not None else fields.intensity
-        terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac, capture)
-        if not torch.isfinite(terms.total):
+        terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac, capture, shard)
+        if not shard.all_true(bool(torch.isfinite(terms.total))):
             state.rollbacks += 1
             if state.rollbacks > 5:
                 raise SrvolError("training diverged: the loss stayed non-finite after 5 rollbacks")
@@ -218,14 +224,14 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             say(f"non-finite loss at step {state.step}: rolled back to step {last_good_step} "
                 f"with learning rate x{state.lr_scale:g}")
             continue
-        take_step(opts, terms.total)
+        take_step(opts, terms.total, shard)
         if state.stage == 1 and cfg.beta_anneal > 0:
             fields.cap_beta(beta_cap(progress_frac, cfg.beta_anneal))
         state.step += 1
         recent.append((terms.squared_error, terms.pixels))
         state.elapsed = time.time() - t_start
         step_seconds = state.elapsed - elapsed
-        if state.step % cfg.log_every == 0:
+        if state.step % cfg.log_every == 0 and main:
             rec = {"step": state.step, "stage": state.stage, "seconds": round(state.elapsed, 2),
                    "loss": round(float(terms.total.detach()), 6), "l1": round(terms.photometric, 6),
                    "eikonal": round(terms.eikonal, 6), "mask": round(terms.mask, 6),
@@ -240,7 +246,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         else:
             bar.n = min(int(state.elapsed), int(budget))
             bar.refresh()
-        if cfg.snapshots and snaps_done < cfg.snapshots:
+        if cfg.snapshots and snaps_done < cfg.snapshots and main:
             frac = state.step / cfg.iters if cfg.iters else state.elapsed / budget
             if frac >= (snaps_done + 1) / cfg.snapshots - 1e-9 or frac >= 1.0:
                 snaps_done += 1
@@ -249,17 +255,23 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             reason = check_not_collapsed(fields, device)
             if reason:
                 raise SrvolError(f"step {state.step}: {reason}")
-            save_checkpoint(ckpt_dir, fields, opts, state, gen.get_state(), capture)
+            if main:
+                save_checkpoint(ckpt_dir, fields, opts, state, gen.get_state(), capture)
             last_good_step = state.step
     bar.close()
     reason = check_not_collapsed(fields, device)
     if reason:
         raise SrvolError(reason)
+    if not main:
+        shard.barrier()  # rank 0 writes the model: when train() returns, the run is complete on every rank
+        return TrainSummary(iterations=state.step, train_seconds=state.elapsed,
+                            final_psnr=recent_psnr(recent), rollbacks=state.rollbacks)
     save_checkpoint(ckpt_dir, fields, opts, state, gen.get_state(), capture)
     if cfg.snapshots and snaps_done < cfg.snapshots:
         save_snapshot(run_dir / "snapshots", fields, state.step, state.elapsed)
     write_model(run_dir, fields)
     if capture is not None:
         atomic_write_text(run_dir / CAPTURE_TERMS_NAME, json.dumps(capture.values(scene.train), indent=1) + "\n")
+    shard.barrier()
     return TrainSummary(iterations=state.step, train_seconds=state.elapsed,
                         final_psnr=recent_psnr(recent), rollbacks=state.rollbacks)

@@ -86,6 +86,11 @@ def add_parser(sub) -> None:
     p.add_argument("--snapshots", type=int, default=0,
                    help="save the fields N times evenly over training (RUN/snapshots/, for quality-vs-time charts)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--distributed", action="store_true",
+                   help="data-parallel over the processes torchrun starts (`torchrun --standalone --nproc_per_node N "
+                        "-m srvol train ... --distributed`): each rank renders its share of every step's rays, gradients "
+                        "are summed (gloo on the CPU, nccl on CUDA); rank 0 writes the run; --out must be a "
+                        "folder every rank sees")
     p.set_defaults(func=run_train)
 
 
@@ -196,47 +201,84 @@ def build_config(scene, args):
 
 
 def run_train(args) -> int:
-    from srvol.config import (RunConfig, SceneRecord, describe_psf_rays, describe_ray_samples, read_run_config,
-                              write_run_config)
+    if not args.distributed:
+        return _run_train(args)
+    from srvol import distributed
+
+    shard = distributed.start(args.device)
+    try:
+        return _run_train(args, shard)
+    finally:
+        distributed.stop()
+
+
+def _prepare_run(args, scene):
+    """The run's config: read back (--resume) or built and written into a fresh --out."""
+    from srvol.config import RunConfig, SceneRecord, read_run_config, write_run_config
+
+    run = args.out
+    if args.resume:
+        return read_run_config(run).train
+    if run.exists() and any(run.iterdir()) and not args.force:
+        raise SrvolError(f"{run}: already exists (use --resume to continue or --force to replace it)")
+    if run.exists() and args.force:
+        import shutil
+
+        shutil.rmtree(run)
+    cfg = build_config(scene, args)
+    run.mkdir(parents=True, exist_ok=True)
+    write_run_config(run, RunConfig(train=cfg, scene=SceneRecord.of_scene(scene, args.scene)))
+    return cfg
+
+
+def _run_train(args, shard=None) -> int:
+    from srvol.config import describe_psf_rays, describe_ray_samples, read_run_config
     from srvol.data import load_scene
+    from srvol.distributed import SINGLE
     from srvol.train import train
 
+    shard = shard or SINGLE
     t0 = time.time()
     if args.device == "cuda" and not torch.cuda.is_available():
         raise SrvolError("--device cuda: no CUDA device available")
+    if args.distributed and args.normal_smoothness:
+        raise SrvolError("--normal-smoothness does not run with --distributed (its points differ per rank)")
     scene = load_scene(args.scene)
     run = args.out
-    if args.resume:
-        cfg = read_run_config(run).train
+    if shard.is_main:
+        try:
+            cfg = _prepare_run(args, scene)
+        except SrvolError:
+            shard.all_true(False)  # the other ranks stop too
+            raise
+        shard.all_true(True)
     else:
-        if run.exists() and any(run.iterdir()) and not args.force:
-            raise SrvolError(f"{run}: already exists (use --resume to continue or --force to replace it)")
-        if run.exists() and args.force:
-            import shutil
-
-            shutil.rmtree(run)
-        cfg = build_config(scene, args)
-        run.mkdir(parents=True, exist_ok=True)
-        write_run_config(run, RunConfig(train=cfg, scene=SceneRecord.of_scene(scene, args.scene)))
+        if not shard.all_true(True):
+            return 2  # rank 0 said why
+        cfg = read_run_config(run).train
     from srvol.fields import SceneFields
 
     n_params = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
-    print(f"preset {cfg.preset}, sr {cfg.sr}, {describe_psf_rays(cfg, scene.info.psf)}, "
-          f"{describe_ray_samples(cfg)}, "
-          f"{n_params / 1e6:.2f} M parameters")
-    print(f"  {cfg.fields.parameter_summary()}")
+    say = print if shard.is_main else (lambda *_: None)
+    say(f"preset {cfg.preset}, sr {cfg.sr}, {describe_psf_rays(cfg, scene.info.psf)}, "
+        f"{describe_ray_samples(cfg)}, "
+        f"{n_params / 1e6:.2f} M parameters" + (f", {shard.world} data-parallel ranks" if shard.world > 1 else ""))
+    say(f"  {cfg.fields.parameter_summary()}")
     for r in cfg.reasons:
-        print(f"  - {r}")
+        say(f"  - {r}")
     if cfg.iters == 0:
         # The budget bounds the whole command: setup so far and the final save come out of it.
         cfg = replace(cfg, time_budget=max(1.0, cfg.time_budget - (time.time() - t0) - 3.0))
-    summary = train(scene, cfg, run, resume=args.resume, progress=not args.quiet)
+    summary = train(scene, cfg, run, resume=args.resume, progress=not args.quiet, shard=shard)
+    if not shard.is_main:
+        return 0
     from srvol.atomic import atomic_write_text
 
     atomic_write_text(run / "train_summary.json", json.dumps(
         {"iterations": summary.iterations, "train_seconds": round(summary.train_seconds, 2),
          "command_seconds": round(time.time() - t0, 2), "final_train_psnr": summary.final_psnr,
-         "rollbacks": summary.rollbacks, "parameters": n_params, "peak_rss_gib": _peak_rss_gib()}, indent=1))
+         "rollbacks": summary.rollbacks, "parameters": n_params, "peak_rss_gib": _peak_rss_gib(),
+         **({"ranks": shard.world} if shard.world > 1 else {})}, indent=1))
     print(f"trained {summary.iterations} iterations in {summary.train_seconds:.0f} s "
           f"(train PSNR {summary.final_psnr:.2f} dB) -> {run}")
     return 0

@@ -162,9 +162,9 @@ def test_a_time_budget_is_not_overrun_by_a_slow_last_step(default_scene, tmp_pat
                   batch_out=16, batch_eikonal=16, batch_stage2=128)
     real = T.take_step
 
-    def slow(opts, loss):
+    def slow(opts, loss, shard):
         t0 = time.time()
-        real(opts, loss)
+        real(opts, loss, shard)
         time.sleep(max(0.0, 0.4 - (time.time() - t0)))
 
     monkeypatch.setattr(T, "take_step", slow)
