@@ -301,7 +301,7 @@ def _optional_commands():
     """Commands contributed by the pipeline stages (each module exposes ``add_parser(sub)``)."""
     adders = []
     for mod_name in ("srvol.train_cli", "srvol.capture.cli", "srvol.export.cli", "srvol.relight.cli",
-                     "srvol.relight.view", "srvol.report"):
+                     "srvol.relight.view", "srvol.report", "srvol.batch.cli"):
         try:
             mod = __import__(mod_name, fromlist=["add_parser"])
         except ModuleNotFoundError as e:
