@@ -6,7 +6,7 @@ STAMP   := $(VENV)/.installed
 DEMO    ?= demo_out
 THREADS ?= 2
 
-.PHONY: all venv test demo bench clean
+.PHONY: all venv test demo demo-capture bench clean
 
 all: test
 
@@ -26,8 +26,11 @@ test: $(STAMP)
 demo: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(BIN)/python -m srvol.demo --out $(DEMO)
 
+demo-capture: $(STAMP)
+	OMP_NUM_THREADS=$(THREADS) $(BIN)/python -m srvol.demo --capture --budget 600 --out $(DEMO)_capture
+
 bench: $(STAMP)
 	OMP_NUM_THREADS=$(THREADS) $(BIN)/python -m bench.run_all
 
 clean:
-	rm -rf $(VENV) $(DEMO) .pytest_cache
+	rm -rf $(VENV) $(DEMO) $(DEMO)_capture .pytest_cache

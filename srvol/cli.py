@@ -232,7 +232,7 @@ def _neural_relit_fn(fields):
 
 BENCHES = {"all": "bench.run_all", "synth": "bench.bench_synth", "train": "bench.bench_train",
            "stage2": "bench.bench_stage2", "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study",
-           "suite": "bench.bench_suite", "view": "bench.bench_view"}
+           "suite": "bench.bench_suite", "view": "bench.bench_view", "batch": "bench.bench_batch"}
 
 
 def _add_bench(sub) -> None:
@@ -243,7 +243,8 @@ def _add_bench(sub) -> None:
                                    "name go to the benchmark, e.g. `srvol bench study --budget 120 --only sweep`.")
     p.add_argument("which", nargs="?", default="all", choices=tuple(BENCHES),
                    help="synth, train (SR vs noSR vs Vol-SR, paper), stage2 (stage-2 PSF samplers on the train runs), export, relight, "
-                        "view (srvol view's render latency), study (N_s sweep, "
+                        "view (srvol view's render latency), batch (srvol batch against the same steps by hand), "
+                        "study (N_s sweep, "
                         "stability, capacity), suite (every built-in scene, tuning and report sets; hours, "
                         "resumable; not part of 'all') or all (default)")
     p.add_argument("args", nargs=argparse.REMAINDER, help="passed on to the benchmark")
