@@ -88,17 +88,20 @@ def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
     s = json.loads(summary.read_text())
     row.update({k: m[k] for k in RUN_KEYS if k in m})
     row.update(train_psnr=train_psnr_at_end(run), stage2_swing_db=stage2_swing_db(run),
+               stage2_step_swing_db=stage2_swing_db(run, "psnr"),
                iterations=s["iterations"], train_seconds=s["train_seconds"],
                parameters=s.get("parameters", 0), peak_rss_gib=s.get("peak_rss_gib"))
     return row
 
 
-def stage2_swing_db(run: Path) -> float:
+def stage2_swing_db(run: Path, key: str = "probe_psnr") -> float:
     """The largest distance (dB) of stage 2's logged train PSNR from its running median, after the
-    first 10 % of stage 2's log lines (NaN without a stage 2): how steady the BRDF refinement is."""
+    first 10 % of stage 2's log lines (NaN without a stage 2): how steady the BRDF refinement is.
+    ``probe_psnr``: on fixed pixels and rays (the model's changes); ``psnr``: on each step's own
+    pixels (also the draw's); a log without probe_psnr (older runs) gives NaN for it."""
     log_path = run / "log.jsonl"
     lines = log_path.read_text().splitlines() if log_path.is_file() else []
-    psnr = [r["psnr"] for r in map(json.loads, lines) if r.get("stage") == 2]
+    psnr = [r[key] for r in map(json.loads, lines) if r.get("stage") == 2 and key in r]
     start = len(psnr) // 10
     devs = [abs(psnr[i] - float(np.median(psnr[: i + 1]))) for i in range(start, len(psnr))]
     return max(devs) if devs else float("nan")
@@ -173,7 +176,7 @@ def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
 def detail_lines(rows: list[dict]) -> list[str]:
     """One line per run: every metric of `srvol eval` and the run's cost."""
     lines = ["| scene | variant | HR PSNR | masked PSNR | SSIM | normal MAE (deg) | albedo PSNR | relit PSNR | "
-             "train PSNR (LR) | stage-2 swing dB | iterations | train s | parameters | peak RSS GiB |", "|" + "---|" * 14]
+             "train PSNR (LR) | stage-2 swing dB (probe / step) | iterations | train s | parameters | peak RSS GiB |", "|" + "---|" * 14]
     for r in rows:
         for sr, v in r["variants"].items():
             if "error" in v or v.get("missing"):
@@ -182,7 +185,8 @@ def detail_lines(rows: list[dict]) -> list[str]:
                 continue
             lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {_f(v.get('psnr_hr'))} | {_f(v.get('psnr_hr_masked'))} | "
                          f"{_f(v.get('ssim_hr'), '.3f')} | {_f(v.get('normal_mae_deg'))} | {_f(v.get('albedo_psnr'))} | "
-                         f"{_f(v.get('relit_psnr'))} | {_f(v.get('train_psnr'))} | {_f(v.get('stage2_swing_db'))} | "
+                         f"{_f(v.get('relit_psnr'))} | {_f(v.get('train_psnr'))} | "
+                         f"{_f(v.get('stage2_swing_db'))} / {_f(v.get('stage2_step_swing_db'))} | "
                          f"{v['iterations']} | "
                          f"{v['train_seconds']:.0f} | {v['parameters'] / 1e6:.2f} M | {_f(v.get('peak_rss_gib'))} |")
     return lines

@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from srvol.capture.terms import CaptureTerms
-from srvol.config import TrainConfig, sampler_of_stage
+from srvol.config import TrainConfig, psf_rays_per_pixel, sampler_of_stage
 from srvol.distributed import SINGLE, Shard
 from srvol.errors import SrvolError
 from srvol.fields import SceneFields
@@ -103,6 +103,42 @@ def squared_error(estimate: Tensor, batch: PixelBatch) -> tuple[float, float]:
     return float((sq.mean(-1) * fg).sum()), float(fg.sum())
 
 
+def flash_lit(bank: PixelBank, rays: Rays, ray_view: Tensor, n_lit: int, intensity: Tensor,
+              capture: CaptureTerms | None) -> tuple[Rays, PointLight]:
+    """The rays (pose-refined with ``capture``) and the flash lighting each: co-located with its
+    camera, or at the capture's learned offset from the lens for the first ``n_lit`` rays."""
+    if capture is None:
+        return rays, PointLight(position=rays.origins, intensity=intensity)
+    origins, directions = capture.refine_rays(rays.origins, rays.directions, ray_view)
+    w2c = bank.R_T[ray_view[:n_lit]].transpose(1, 2)
+    light_at = torch.cat([capture.flash_position(origins[:n_lit], w2c), origins[n_lit:]])
+    return Rays(origins, directions), PointLight(position=light_at, intensity=intensity)
+
+
+PROBE_PIXELS = 512
+"""In-mask training pixels of the log's probe PSNR, drawn once per run."""
+
+
+def probe_pixels(bank: PixelBank, cfg: TrainConfig, psf: PsfSampler) -> PixelBatch:
+    """Fixed pixels and PSF rays for :func:`probe_psnr` (its own seed: the run's draws are untouched)."""
+    gen = torch.Generator().manual_seed(cfg.seed + 7919)
+    return bank.sample(PROBE_PIXELS, True, psf, psf_rays_per_pixel(cfg, 1, 1.0), gen)
+
+
+def probe_psnr(fields: SceneFields, bank: PixelBank, probe: PixelBatch, cfg: TrainConfig, stage: int,
+               intensity: Tensor, capture: CaptureTerms | None = None) -> float:
+    """Train PSNR on the same pixels, rays and sample positions every time (no jitter): it changes
+    only when the model does. The step's own PSNR also moves with which pixels a step drew: a few
+    patches on an edge or a dark pip can take it down by 10 dB for a log line."""
+    rays, light = flash_lit(bank, probe.rays, probe.ray_view, probe.n_rays, intensity, capture)
+    vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=False, jitter=False,
+                       with_albedo=capture is not None)
+    rgb = probe.estimate(vr.result.rgb.detach())
+    if capture is not None:
+        rgb = capture.apply(rgb, probe.estimate(vr.albedo.detach()), probe.view, probe.r2).detach()
+    return psnr_of(*squared_error(rgb, probe))
+
+
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
                  gen: torch.Generator, intensity: Tensor, progress: float = 1.0,
                  capture: CaptureTerms | None = None, shard: Shard = SINGLE) -> LossTerms:
@@ -129,13 +165,7 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     jitter = True if shard.world == 1 else RayRows(torch.cat(rows).to(rays.origins.device),
                                                    whole.n_rays + (cfg.batch_out if use_mask else 0))
     n_pix_rays = batch.n_rays
-    light_at = rays.origins  # co-located: at each ray's camera
-    if capture is not None:
-        origins, directions = capture.refine_rays(rays.origins, rays.directions, ray_view)
-        rays = Rays(origins, directions)
-        w2c = bank.R_T[batch.ray_view].transpose(1, 2)
-        light_at = torch.cat([capture.flash_position(origins[:n_pix_rays], w2c), origins[n_pix_rays:]])
-    light = PointLight(position=light_at, intensity=intensity)
+    rays, light = flash_lit(bank, rays, ray_view, n_pix_rays, intensity, capture)
     shade_rays = torch.arange(len(rays), device=rays.origins.device) < n_pix_rays
     vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=train_geo, jitter=jitter,
                        shade_rays=shade_rays, with_albedo=capture is not None)

@@ -100,15 +100,16 @@ def _uniform(n_rays: int, n: int, jitter: Jitter, like: Tensor) -> Tensor:
 
 
 def sample_from_weights(t: Tensor, weights: Tensor, n: int, generator: torch.Generator | None = None,
-                        rows: RayRows | None = None) -> Tensor:
-    """(N, n) distances drawn by inverse CDF from piecewise-constant weights on bins centred at ``t``."""
+                        jitter: Jitter = True) -> Tensor:
+    """(N, n) distances drawn by inverse CDF from piecewise-constant weights on bins centred at ``t``
+    (stratified; without jitter at the middle of each stratum: the same distances every call)."""
     pdf = weights + 1e-5
     pdf = pdf / pdf.sum(-1, keepdim=True)
     cdf = torch.cat([torch.zeros_like(pdf[:, :1]), torch.cumsum(pdf, -1)], -1)
     half = 0.5 * (t[:, 1:2] - t[:, 0:1])
     edges = torch.cat([t - half, t[:, -1:] + half], -1)
-    off = rows.uniform(n, t) if rows is not None else torch.rand(t.shape[0], n, generator=generator,
-                                                                    device=t.device, dtype=t.dtype)
+    off = (torch.rand(t.shape[0], n, generator=generator, device=t.device, dtype=t.dtype)
+           if jitter is True else _uniform(t.shape[0], n, jitter, t))
     u = (torch.arange(n, dtype=t.dtype, device=t.device) + off) / n
     idx = torch.searchsorted(cdf, u.contiguous(), right=True).clamp(1, cdf.shape[1] - 1)
     c0, c1 = cdf.gather(1, idx - 1), cdf.gather(1, idx)
@@ -189,8 +190,7 @@ def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitte
                 tc, d, lambda tr: fields.sdf(rays.at(tr).reshape(-1, 3)).reshape(tr.shape), cfg.n_refine)
         root, has = first_crossing(tl, dl)
         if cfg.n_importance:
-            from_weights = sample_from_weights(tc, w, cfg.n_importance,
-                                               rows=jitter if isinstance(jitter, RayRows) else None)
+            from_weights = sample_from_weights(tc, w, cfg.n_importance, jitter=jitter)
             spread = 4.0 * beta.clamp_min(1e-3)
             band = _stratified(root - spread, root + spread, cfg.n_importance, jitter)
             parts.append(torch.where(has[:, None], band, from_weights))

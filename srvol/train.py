@@ -23,7 +23,7 @@ from srvol.data import Scene
 from srvol.distributed import SINGLE, Shard
 from srvol.errors import SrvolError
 from srvol.fields import BETA_INIT, SceneFields
-from srvol.losses import compute_loss, psnr_of
+from srvol.losses import compute_loss, probe_pixels, probe_psnr, psnr_of
 from srvol.pixels import PixelBank
 from srvol.psf import PsfSampler, SRMode
 
@@ -168,6 +168,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         gen.set_state(ck.generator_state)
         say(f"resuming at step {state.step} (stage {state.stage}, {state.elapsed:.0f} s trained)")
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
+    probe = probe_pixels(bank, cfg, psf) if main else None
     budget, = shard.agree(cfg.time_budget if cfg.iters == 0 else 0.0)  # rank 0's: one budget binds all ranks
     stage2_at = int(cfg.iters * (1 - cfg.stage2_fraction)) if cfg.iters else None
     log_path = run_dir / "log.jsonl"
@@ -236,7 +237,9 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                    "loss": round(float(terms.total.detach()), 6), "l1": round(terms.photometric, 6),
                    "eikonal": round(terms.eikonal, 6), "mask": round(terms.mask, 6),
                    **({"smooth": round(terms.smooth, 6)} if cfg.lambda_smooth > 0 else {}),
-                   "psnr": round(recent_psnr(recent), 3), "beta": round(float(fields.beta.detach()), 6)}
+                   "psnr": round(recent_psnr(recent), 3),
+                   "probe_psnr": round(probe_psnr(fields, bank, probe, cfg, state.stage, intensity, capture), 3),
+                   "beta": round(float(fields.beta.detach()), 6)}
             with open(log_path, "a") as f:
                 f.write(json.dumps(rec) + "\n")
             bar.set_postfix(loss=f"{float(terms.total.detach()):.4f}", psnr=f"{recent_psnr(recent):.2f}",

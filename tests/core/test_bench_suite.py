@@ -39,6 +39,8 @@ def test_stage2_swing_is_the_largest_distance_from_the_running_median(tmp_path):
 
     from bench.bench_suite import stage2_swing_db
 
-    lines = [{"stage": 1, "psnr": 10.0}] + [{"stage": 2, "psnr": p} for p in (30.0, 31.0, 30.0, 36.0)]
+    lines = [{"stage": 1, "psnr": 10.0, "probe_psnr": 10.0}] + [
+        {"stage": 2, "psnr": p, "probe_psnr": q} for p, q in ((30.0, 31.0), (31.0, 31.5), (30.0, 31.5), (36.0, 31.5))]
     (tmp_path / "log.jsonl").write_text("\n".join(json.dumps(r) for r in lines) + "\n")
-    assert stage2_swing_db(tmp_path) == 5.5
+    assert stage2_swing_db(tmp_path, "psnr") == 5.5
+    assert stage2_swing_db(tmp_path) == 0.25  # the probe: medians 31, 31.25, 31.5, 31.5

@@ -387,3 +387,27 @@ def test_the_thin_parts_flags_are_off_by_default_and_set_by_the_cli(default_scen
     for bad in (["--beta-anneal", "1.5"], ["--silhouette-rays", "2"]):
         with pytest.raises(SrvolError, match=bad[0]):
             build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *bad]))
+
+
+def test_the_probe_psnr_is_the_same_for_the_same_model_and_moves_with_it(default_scene):
+    """The log's probe PSNR: fixed pixels, rays and samples -- two calls on one model agree to the
+    last digit; after a few steps of training it is higher."""
+    from srvol.losses import probe_pixels, probe_psnr
+
+    scene = load_scene(default_scene)
+    cfg = _tiny(auto_config(scene, "gaussian", 60.0), 0)
+    bank = PixelBank(scene, torch.device("cpu"))
+    psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
+    probe = probe_pixels(bank, cfg, psf)
+    assert probe.n_pixels == 512 and probe_pixels(bank, cfg, psf).target.equal(probe.target)
+    fields = SceneFields(cfg.fields, learn_intensity=False)
+    I = torch.tensor(scene.info.light_intensity)
+    before = probe_psnr(fields, bank, probe, cfg, 1, I)
+    assert probe_psnr(fields, bank, probe, cfg, 1, I) == before
+    from srvol.train import make_optimizers, take_step
+
+    opts = make_optimizers(fields, cfg, 1)
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(30):
+        take_step(opts, compute_loss(fields, bank, cfg, psf, 1, gen, I).total)
+    assert probe_psnr(fields, bank, probe, cfg, 1, I) > before + 1.0
