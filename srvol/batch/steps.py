@@ -91,8 +91,26 @@ def source_kind(path: Path) -> str:
 
 
 def applies(src: Source, step: str) -> bool:
-    """import only for photo folders; every other step for every source."""
-    return step != "import" or src.kind == "photos"
+    """import only for photo folders; eval only for scenes with held-out test views (a capture's
+    photos have no ground truth to score); every other step for every source."""
+    if step == "import":
+        return src.kind == "photos"
+    if step == "eval":
+        return has_test_views(src.scene)
+    return True
+
+
+def has_test_views(scene: Path) -> bool:
+    """Whether the scene names held-out test views (True until it exists: its eval will say)."""
+    if not (scene / "cameras.json").is_file():
+        return True
+    from srvol.data import load_scene
+    from srvol.errors import SrvolError
+
+    try:
+        return bool(load_scene(scene, load_images=False).test)
+    except SrvolError:
+        return True
 
 
 def step_done(src: Source, step: str) -> bool:
@@ -199,7 +217,9 @@ def run_source(src: Source, spec: JobSpec) -> dict:
         state["error"] = f"{src.path}: not a scene folder (cameras.json) or a folder of photos"
         write_state(src, state)
         return {"status": "failed", "error": state["error"]}
-    for step in pending_steps(src, spec):
+    for step in spec.steps:
+        if not applies(src, step) or step_done(src, step):  # asked step by step: an import decides eval
+            continue
         try:
             seconds = run_step(src, step, spec)
         except StepFailed as e:

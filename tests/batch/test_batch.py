@@ -59,13 +59,18 @@ def test_a_batch_finishes_the_good_sources_and_names_the_broken_one(tiny_scenes,
     index = (out / "index.html").read_text()
     assert 'href="pot/report.html"' in index and 'href="vase/report.html"' in index
 
-    # run again: the complete sources are skipped (no Ray, no step) and nothing complete is touched
+    # the complete sources again: skipped (no Ray, no step), nothing of theirs touched
+    good = [str(tiny_scenes / "pot"), str(tiny_scenes / "vase"), "--out", str(out), *TINY]
     before = _snapshot(out / "pot")
+    assert _batch(*good).returncode == 0
+    assert _snapshot(out / "pot") == before
+    # and the same command once more: everything is complete, so no file at all changes
+    before = _snapshot(out)
     t0 = time.time()
-    again = _batch(str(tiny_scenes / "pot"), str(tiny_scenes / "vase"), "--out", str(out), *TINY)
+    again = _batch(*good)
     assert again.returncode == 0, again.stderr[-3000:]
     assert time.time() - t0 <= 10.0
-    assert _snapshot(out / "pot") == before
+    assert _snapshot(out) == before
 
 
 def test_a_killed_training_is_retried_and_resumes_from_its_checkpoint(tiny_scenes, tmp_path):
