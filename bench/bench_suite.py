@@ -22,6 +22,7 @@ import argparse
 import hashlib
 import json
 import math
+import os
 import shlex
 import sys
 from pathlib import Path
@@ -196,6 +197,8 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
     columns = ["bicubic", *args.variants]
     length = f"{args.iters} iterations" if args.iters else f"{args.budget:g} s"
     lines = [f"# Scene suite: auto preset, {length} per run (2-core CPU)", "",
+             f"Each run: OMP_NUM_THREADS={args.threads_per_run}, {args.runs_at_once} run(s) sharing the machine "
+             "at a time (two `bench_suite` processes with disjoint --scenes, then --collect).", "",
              "HR metrics are means over each scene's held-out test views. bicubic: each test view's own LR image "
              "upsampled bicubically (a 2D reference that sees the test view, which no 3D method is given). Set "
              "means are over the scenes with every column. Reproduce: `srvol bench suite "
@@ -249,6 +252,10 @@ def main(argv=None) -> int:
                          "add it on a subset, e.g. with --scenes) (default none,gaussian)")
     ap.add_argument("--budget", type=float, default=600.0, help="training seconds per run (default 600)")
     ap.add_argument("--iters", type=int, default=0, help="train this many iterations instead of --budget (tests)")
+    ap.add_argument("--runs-at-once", type=int, default=1, help="for the table's header: how many runs shared the "
+                                                                  "machine at a time (default 1)")
+    ap.add_argument("--threads-per-run", default=os.environ.get("OMP_NUM_THREADS", "2"),
+                    help="for the table's header: each run's OMP_NUM_THREADS (default: this process's)")
     ap.add_argument("--collect", action="store_true", help="train nothing: re-tabulate the runs already in --work")
     ap.add_argument("--synth", default="", help="extra `srvol synth` flags for every scene, e.g. "
                                                 "--synth='--lr 24x18 --views 4 --test-views 1' (cached apart)")

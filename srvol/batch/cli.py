@@ -52,10 +52,12 @@ def add_parser(sub) -> None:
 
 
 def resolve_sources(paths: list[Path], out: Path) -> list[Source]:
-    """One Source per path; names are the folder names (made unique with -2, -3, ...)."""
+    """One Source per path; names are the folder names (the parent's for a folder called photos or
+    images: mug/photos is 'mug'), made unique with -2, -3, ..."""
     sources, seen = [], {}
     for path in paths:
-        base = path.resolve().name or "source"
+        full = path.resolve()
+        base = (full.parent.name if full.name.lower() in ("photos", "images") else full.name) or "source"
         seen[base] = seen.get(base, 0) + 1
         name = base if seen[base] == 1 else f"{base}-{seen[base]}"
         sources.append(Source(name=name, path=path.resolve(), kind=source_kind(path), out=out.resolve() / name))
