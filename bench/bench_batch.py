@@ -7,7 +7,7 @@ OMP_NUM_THREADS=--threads. Then `srvol batch` over the same four scenes into a f
 command). Both train a fixed number of iterations, so the work is the same; the overhead is the
 difference of the wall times over the by-hand total (Ray's start, scheduling, polling).
 
-    OMP_NUM_THREADS=2 python -m bench.bench_batch [--iters 1500] [--threads 2]
+    OMP_NUM_THREADS=2 python -m bench.bench_batch [--iters 400] [--threads 2]
 
 writes bench/results/batch_table.md/.json.
 """
@@ -72,7 +72,7 @@ def with_batch(scenes: list[Path], spec: JobSpec) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--iters", type=int, default=1500, help="training iterations per scene (default 1500)")
+    ap.add_argument("--iters", type=int, default=400, help="training iterations per scene (default 400)")
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 2,
                     help="threads per job (default: the machine's CPUs: one job at a time)")
     args = ap.parse_args(argv)
