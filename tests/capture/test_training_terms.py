@@ -73,7 +73,17 @@ def test_the_flash_offset_moves_the_light_of_each_ray(small_import):
                                   capture=terms).photometric)
 
     assert stage2_loss((0.0, 0.0, 0.0)) == pytest.approx(stage2_loss(None), abs=1e-6)  # no offset: co-located
-    assert abs(stage2_loss((0.3, 0.0, 0.0)) - stage2_loss(None)) > 1e-4
+    assert stage2_loss((0.3, 0.0, 0.0)) != stage2_loss(None)  # the loss sees the light move
+    # each ray's flash sits 0.3 to its camera's right: the camera's x axis in the world
+    from srvol.losses import flash_lit
+
+    batch = bank.sample(64, True, psf, 2, torch.Generator().manual_seed(0))
+    terms = CaptureTerms(len(scene.train), bank.camera_of_view,
+                         CaptureTermsConfig(exposure=False, vignetting=False, ambient=False, pose=False,
+                                            flash_offset=(0.3, 0.0, 0.0)))
+    rays, light = flash_lit(bank, batch.rays, batch.ray_view, batch.n_rays, fields.intensity, terms)
+    right = bank.R_T[batch.ray_view][:, :, 0]  # camera-to-world rotation's first column
+    assert torch.allclose(light.position - rays.origins, 0.3 * right, atol=1e-5)
 
 
 def test_the_terms_are_saved_and_survive_a_resume(small_import, tmp_path):
