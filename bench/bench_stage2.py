@@ -97,7 +97,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     import torch
 
-    from srvol.config import STAGE2_SAMPLER, read_run_config
+    from srvol.config import read_run_config
+    from srvol.presets import STAGE2_SAMPLER
     from srvol.render import SamplerConfig
 
     torch.set_num_threads(2)

@@ -37,6 +37,9 @@ class SamplerConfig:
     n_uniform: int = 2
     bound: float = 1.0
     n_refine: int = 0
+    root_steps: int = 3
+    """Regula falsi steps on the first crossing's bracket (:func:`first_crossing`): the band of
+    gradient samples (+-4 beta) is centred on the surface, not on a linear interpolation of it."""
     """No-grad samples added inside the first coarse interval where the surface may lie
     (:func:`refine_first_possible_crossing`): thin parts that fall between coarse samples are found."""
 
@@ -135,15 +138,33 @@ class RaySamples:
     coarse_opacity: Tensor
 
 
-def first_crossing(t: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
-    """Distance of the first outside-to-inside sign change of d along each ray (linear
-    interpolation between the bracketing samples) and whether there is one."""
+def first_crossing(t: Tensor, d: Tensor, sdf_at=None, iters: int = 0) -> tuple[Tensor, Tensor]:
+    """Distance of the first outside-to-inside sign change of d along each ray and whether there
+    is one: linear interpolation between the bracketing samples, then ``iters`` steps of regula
+    falsi (Illinois) on that bracket (``sdf_at(t)`` (N, 1) -> (N, 1), no gradients).
+
+    Interpolation alone is off by ~curvature x spacing^2: on a finished 600 s run of the default
+    scene with 16 locating samples, by 0.0037 scene units at the 90th percentile -- more than the
+    +-4 beta band (0.0033) in which the gradient samples are placed, so one ray in ten rendered its
+    surface from samples that all missed it. Three steps take it to 0.00003 (a ball of radius 0.3
+    seen across its rim: 0.013 -> 0.00002 at most; tests/train/test_volume_render.py)."""
     sign_change = (d[:, :-1] > 0) & (d[:, 1:] <= 0)
     has = sign_change.any(-1)
     k = torch.argmax(sign_change.int(), dim=-1)[:, None]
     t0, t1 = t.gather(1, k)[:, 0], t.gather(1, k + 1)[:, 0]
     d0, d1 = d.gather(1, k)[:, 0], d.gather(1, k + 1)[:, 0]
     root = t0 + (t1 - t0) * d0 / (d0 - d1).clamp_min(1e-9)
+    last = torch.zeros_like(has)  # which end the previous step replaced (Illinois rule)
+    for i in range(iters if sdf_at is not None else 0):
+        dr = sdf_at(root[:, None])[:, 0]
+        outside = dr > 0  # the root is still in front of the surface: it becomes the near end
+        if i:  # the same end kept twice: halve the other's value, or the bracket closes from one side only
+            d1 = torch.where(outside & last, 0.5 * d1, d1)
+            d0 = torch.where(~outside & ~last, 0.5 * d0, d0)
+        t0, d0 = torch.where(outside, root, t0), torch.where(outside, dr, d0)
+        t1, d1 = torch.where(outside, t1, root), torch.where(outside, d1, dr)
+        last = outside
+        root = t0 + (t1 - t0) * d0 / (d0 - d1).clamp_min(1e-9)
     return root, has
 
 
@@ -184,11 +205,13 @@ def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitte
         beta = fields.beta
         w = render_weight_from_density(laplace_density(d, beta), deltas) * inside[:, None]
         parts = [_stratified(near, far, cfg.n_uniform, jitter)] if cfg.n_uniform else []
+        def sdf_at(tr: Tensor) -> Tensor:
+            return fields.sdf(rays.at(tr).reshape(-1, 3)).reshape(tr.shape)
+
         tl, dl = tc, d
         if cfg.n_refine:
-            tl, dl = refine_first_possible_crossing(
-                tc, d, lambda tr: fields.sdf(rays.at(tr).reshape(-1, 3)).reshape(tr.shape), cfg.n_refine)
-        root, has = first_crossing(tl, dl)
+            tl, dl = refine_first_possible_crossing(tc, d, sdf_at, cfg.n_refine)
+        root, has = first_crossing(tl, dl, sdf_at, cfg.root_steps)
         if cfg.n_importance:
             from_weights = sample_from_weights(tc, w, cfg.n_importance, jitter=jitter)
             spread = 4.0 * beta.clamp_min(1e-3)

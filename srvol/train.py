@@ -115,13 +115,10 @@ def check_not_collapsed(fields: SceneFields, device) -> str | None:
 
 # ----------------------------------------------------------------------------- the loop
 
-BETA_CAP_END = 0.002
-
-
-def beta_cap(progress: float, anneal: float) -> float:
-    """The upper bound on beta at ``progress`` of the run: from its start (BETA_INIT) to BETA_CAP_END
-    geometrically over the first ``anneal`` of it, then BETA_CAP_END."""
-    return BETA_INIT * (BETA_CAP_END / BETA_INIT) ** min(max(progress, 0.0) / anneal, 1.0)
+def beta_cap(progress: float, anneal: float, end: float) -> float:
+    """The upper bound on beta at ``progress`` of the run: from its start (BETA_INIT) to ``end``
+    geometrically over the first ``anneal`` of it, then ``end``."""
+    return BETA_INIT * (end / BETA_INIT) ** min(max(progress, 0.0) / anneal, 1.0)
 
 
 def recent_psnr(recent: deque[tuple[float, float]]) -> float:
@@ -227,7 +224,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             continue
         take_step(opts, terms.total, shard)
         if state.stage == 1 and cfg.beta_anneal > 0:
-            fields.cap_beta(beta_cap(progress_frac, cfg.beta_anneal))
+            fields.cap_beta(beta_cap(progress_frac, cfg.beta_anneal, cfg.beta_cap_end))
         state.step += 1
         recent.append((terms.squared_error, terms.pixels))
         state.elapsed = time.time() - t_start

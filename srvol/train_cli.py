@@ -53,14 +53,18 @@ def add_parser(sub) -> None:
                         "(default 0 = off: at 600 s it measured no gain, bench/results/train_table.md)")
     p.add_argument("--beta-anneal", type=float,
                    help="share of the run, 0..0.9, over which an upper bound on VolSDF's beta falls from 0.1 to "
-                        "0.002 (default 0: beta free, as the paper)")
+                        "--beta-cap-end (auto: 0.3; fast, paper: 0, beta free as in the paper)")
+    p.add_argument("--beta-cap-end", type=float,
+                   help="where the --beta-anneal bound ends, in scene units (auto: the HR pixel footprint; "
+                        "others 0.002)")
     p.add_argument("--silhouette-rays", type=float,
                    help="share, 0..1, of the out-of-mask rays drawn from each view's mask bounding box (+2 px): "
-                        "where the mask carves gaps between thin parts (default 0: anywhere outside the mask)")
+                        "where the mask carves gaps between thin parts (auto: 0.5 when the masks show thin parts, "
+                        "else 0: anywhere outside the mask)")
     p.add_argument("--refine-samples", type=int,
                    help="no-grad samples added, in both stages and at evaluation, inside the first interval of "
                         "each ray where the surface may lie (d + d' < spacing): parts thinner than the locating "
-                        "samples' spacing are found (default 0)")
+                        "samples' spacing are found (auto: 8 when the masks show thin parts, else 0)")
     p.add_argument("--capture-terms", metavar="LIST",
                    help="real-capture terms to learn: 'all', 'none' or a comma list of exposure (a gain per "
                         "photo), flash (the flash's offset from the lens), vignetting (per camera), ambient, pose "
@@ -136,7 +140,7 @@ def _capture_terms(scene, args, default):
 
 
 def build_config(scene, args):
-    from srvol.config import auto_config, fast_config, paper_config
+    from srvol.presets import auto_config, fast_config, paper_config
 
     if not (math.isfinite(args.capacity) and 0.1 <= args.capacity <= 8):
         raise SrvolError(f"--capacity {args.capacity}: must be between 0.1 and 8")
@@ -178,6 +182,10 @@ def build_config(scene, args):
         changes["checkpoint_every"] = max(1, args.checkpoint_every)
     if args.beta_anneal is not None:
         changes["beta_anneal"] = _share(args.beta_anneal, "--beta-anneal", 0.9)
+    if args.beta_cap_end is not None:
+        if not (math.isfinite(args.beta_cap_end) and 1e-5 <= args.beta_cap_end <= 0.1):
+            raise SrvolError(f"--beta-cap-end {args.beta_cap_end}: must be between 1e-5 and 0.1")
+        changes["beta_cap_end"] = args.beta_cap_end
     if args.silhouette_rays is not None:
         changes["silhouette_rays"] = _share(args.silhouette_rays, "--silhouette-rays", 1.0)
     if args.refine_samples is not None:

@@ -13,7 +13,8 @@ import torch
 
 from srvol.capture.frame import read_normalization
 from srvol.capture.terms import CaptureTerms, CaptureTermsConfig
-from srvol.config import AUTO_CAPTURE_TERMS, TrainConfig, auto_config
+from srvol.config import TrainConfig
+from srvol.presets import AUTO_CAPTURE_TERMS, auto_config
 from srvol.data import load_scene
 from srvol.errors import SrvolError
 from srvol.fields import SceneFields

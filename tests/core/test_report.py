@@ -13,7 +13,8 @@ import pytest
 from srvol.errors import SrvolError
 from srvol.images import read_png, write_png
 from srvol.report import build_report
-from srvol.config import RunConfig, SceneRecord, fast_config, write_run_config
+from srvol.config import RunConfig, SceneRecord, write_run_config
+from srvol.presets import fast_config
 from srvol.psf import GaussianPSF
 
 CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)

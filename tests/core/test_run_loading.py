@@ -16,7 +16,8 @@ import torch
 
 from srvol.checkpoint import TrainState, load_checkpoint, load_model, save_checkpoint
 from srvol.cli import main
-from srvol.config import RunConfig, SceneRecord, fast_config, read_run_config, write_run_config
+from srvol.config import RunConfig, SceneRecord, read_run_config, write_run_config
+from srvol.presets import fast_config
 from srvol.fields import FieldConfig, SceneFields
 from srvol.psf import GaussianPSF
 

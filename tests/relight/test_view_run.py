@@ -6,7 +6,8 @@ from pathlib import Path
 
 import torch
 
-from srvol.config import RunConfig, SceneRecord, fast_config, write_run_config
+from srvol.config import RunConfig, SceneRecord, write_run_config
+from srvol.presets import fast_config
 from srvol.fields import FieldConfig, SceneFields
 from srvol.psf import GaussianPSF
 from srvol.relight.view import ViewOptions, Viewer

@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 import torch.multiprocessing as mp
 
-from srvol.config import auto_config
+from srvol.presets import auto_config
 from srvol.data import load_scene
 from srvol.distributed import SINGLE, Shard
 from srvol.train import train

@@ -11,15 +11,17 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+import numpy as np
 import torch
 
 from srvol.data import load_scene
 from srvol.errors import SrvolError
 from srvol.fields import SceneFields
 from srvol.pixels import PixelBank
-from srvol.config import (MTF_FLOOR, STAGE2_SAMPLER, TrainConfig, auto_config, describe_psf_rays,
-                          describe_ray_samples, fast_config, paper_config, psf_rays_per_pixel, psf_sampler_of_stage,
-                          recoverable_cell_hr_px, sampler_of_stage)
+from srvol.config import (TrainConfig, describe_psf_rays, describe_ray_samples, psf_rays_per_pixel,
+                          psf_sampler_of_stage, sampler_of_stage)
+from srvol.presets import (MTF_FLOOR, STAGE2_SAMPLER, auto_config, fast_config, paper_config,
+                           recoverable_cell_hr_px)
 from srvol.losses import compute_loss
 from srvol.pixels import sample_pixels
 from srvol.psf import PsfSampler, SRMode, lattice_size
@@ -352,11 +354,11 @@ def test_refine_samples_reach_both_stages_and_are_said(default_scene):
 
 def test_the_beta_cap_falls_geometrically_then_holds():
     """0.1 at the start, 0.1 * (0.002 / 0.1)^0.5 = 0.01414 halfway through a 0.3 anneal, 0.002 from 0.3 on."""
-    from srvol.train import BETA_CAP_END, beta_cap
+    from srvol.train import beta_cap
 
-    assert beta_cap(0.0, 0.3) == pytest.approx(0.1)
-    assert beta_cap(0.15, 0.3) == pytest.approx(0.1 * (0.002 / 0.1) ** 0.5)
-    assert beta_cap(0.3, 0.3) == beta_cap(0.9, 0.3) == pytest.approx(BETA_CAP_END)
+    assert beta_cap(0.0, 0.3, 0.002) == pytest.approx(0.1)
+    assert beta_cap(0.15, 0.3, 0.002) == pytest.approx(0.1 * (0.002 / 0.1) ** 0.5)
+    assert beta_cap(0.3, 0.3, 0.002) == beta_cap(0.9, 0.3, 0.002) == pytest.approx(0.002)
 
 
 def test_capping_beta_bounds_it_and_leaves_a_lower_beta_alone():
@@ -369,24 +371,47 @@ def test_capping_beta_bounds_it_and_leaves_a_lower_beta_alone():
     assert float(f.beta.detach()) == pytest.approx(0.001 + 1e-4, rel=1e-5)  # below the cap: untouched
 
 
-def test_the_thin_parts_flags_are_off_by_default_and_set_by_the_cli(default_scene):
-    """--beta-anneal, --refine-samples and --silhouette-rays (the stool recipe, THIN_PARTS_RECIPE) are
-    off in every preset until they hold on the default scene; the flags set them; out of range is one line."""
+def test_auto_caps_beta_at_the_pixel_footprint_and_keeps_thin_parts_sampling_for_thin_scenes(default_scene):
+    """The default scene (a bumpy sphere) has no thin parts: auto caps beta (0.1 down to the HR pixel
+    footprint over 30% of the run) and adds no refining samples; the flags add them to any run;
+    out of range is one line."""
     import argparse
 
-    from srvol.config import THIN_PARTS_RECIPE
+    from srvol.config import hr_pixel_size
+    from srvol.presets import THIN_PARTS_RECIPE
     from srvol.train_cli import add_parser, build_config
 
     scene = load_scene(default_scene)
     auto = auto_config(scene, "gaussian", 60.0)
-    assert (auto.beta_anneal, auto.silhouette_rays, auto.sampler.n_refine) == (0.0, 0.0, 0)
+    assert auto.beta_anneal == 0.3 and auto.beta_cap_end == pytest.approx(hr_pixel_size(scene), abs=1e-5)
+    assert (auto.silhouette_rays, auto.sampler.n_refine, sampler_of_stage(auto, 2).n_refine) == (0.0, 0, 0)
+    assert any(r.startswith("no thin parts: ") for r in auto.reasons)
     ap = argparse.ArgumentParser()
     add_parser(ap.add_subparsers())
-    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *THIN_PARTS_RECIPE]))
-    assert (cfg.beta_anneal, cfg.silhouette_rays, sampler_of_stage(cfg, 2).n_refine) == (0.3, 0.5, 8)
-    for bad in (["--beta-anneal", "1.5"], ["--silhouette-rays", "2"]):
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *THIN_PARTS_RECIPE,
+                                             "--beta-cap-end", "0.002"]))
+    assert (cfg.silhouette_rays, sampler_of_stage(cfg, 2).n_refine, cfg.beta_cap_end) == (0.5, 8, 0.002)
+    for bad in (["--beta-anneal", "1.5"], ["--silhouette-rays", "2"], ["--beta-cap-end", "0"]):
         with pytest.raises(SrvolError, match=bad[0]):
             build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *bad]))
+
+
+def test_thin_share_is_the_part_of_a_silhouette_an_opening_removes():
+    """A 20x20 block with a leg 2 pixels wide and 10 long (420 pixels). For a width of 4 the opening's
+    disc has radius 2 (13 pixels): no such disc fits in the leg, so the leg goes (18 of its 20 pixels;
+    the 2 touching the block lie under a disc inside it), and so do the block's 12 corner pixels a
+    round disc cannot reach: 30 / 420. A leg 6 wide keeps all but its two free corners: 18 / 460."""
+    from srvol.presets import thin_share
+
+    mask = np.zeros((40, 40), bool)
+    mask[5:25, 5:25] = True
+    thin = mask.copy()
+    thin[25:35, 14:16] = True
+    assert thin_share([thin], 4.0) == pytest.approx(30 / 420)
+    wide = mask.copy()
+    wide[25:35, 12:18] = True
+    assert thin_share([wide], 4.0) == pytest.approx(18 / 460)
+    assert thin_share([], 4.0) == 0.0
 
 
 def test_the_probe_psnr_is_the_same_for_the_same_model_and_moves_with_it(default_scene):

@@ -1,0 +1,202 @@
+"""The presets, and the rules that derive a run from its scene.
+
+* :func:`paper_config` -- the paper's recipe (a GPU run);
+* :func:`fast_config` -- CPU-first;
+* :func:`auto_config` -- ``fast`` with capacity, samples and schedules derived from the scene;
+  every choice is printed with its reason, and the reasons quote figures measured on the
+  scene suite's tuning set (``srvol synth --list``), never its report set.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from srvol.capture.frame import read_normalization
+from srvol.capture.terms import CaptureTermsConfig
+from srvol.config import TrainConfig, hr_pixel_size, rays_per_step
+from srvol.data import Scene
+from srvol.fields import FieldConfig
+from srvol.psf import SRMode
+from srvol.render import SamplerConfig
+
+
+def paper_config(sr: str = "gaussian", psf_samples: int = 25, iters: int = 300_000) -> TrainConfig:
+    """The paper's recipe (meant for a GPU: days of training)."""
+    return TrainConfig(preset="paper", fields=FieldConfig(kind="paper"),
+                       sampler=SamplerConfig(n_coarse=64, n_importance=32, n_uniform=2),
+                       sr=sr, psf_samples=psf_samples, batch_in=100, batch_out=500, batch_eikonal=1000,
+                       batch_stage2=700, lr=5e-4, lr_final=5e-5, lr_grid=5e-4, lr_spec=1e-5, lr_beta=5e-4, iters=iters,
+                       time_budget=0.0, stage2_fraction=0.1)
+
+
+STAGE2_SAMPLER = SamplerConfig(n_coarse=16, n_importance=3, n_uniform=1)
+"""The fast presets' stage-2 samples per ray: on the default scene's finished 600 s run its colours
+differ from a 128 + 68-sample render by 0.001 on average (the stage-1 sampler's: 0.0002) and a
+stage-2 step takes 2.1x less time (bench/results/stage2_table.md)."""
+
+
+AUTO_CAPTURE_TERMS = CaptureTermsConfig(exposure=True, vignetting=True, ambient=False, pose=False)
+
+AUTO_STAGE2_FRACTION = 0.3
+"""auto's share of the time budget for stage 2 (BRDF refinement on frozen geometry)."""
+
+BETA_ANNEAL = 0.3
+"""auto: share of the run over which beta's cap falls from 0.1 to the HR pixel footprint."""
+
+THIN_SHARE = 0.03
+"""auto: masks with at least this share of their pixels in parts narrower than the locating
+samples' spacing turn on the thin-parts sampling (refining samples, silhouette rays). On the
+tuning set: stool 9.0%, airplane 1.3%, the rest 0.0%; 3% is the gap's geometric middle."""
+
+THIN_PARTS_RECIPE = ("--refine-samples", "8", "--silhouette-rays", "0.5")
+"""The flags auto adds for a scene with thin parts (a user can add them to any run)."""
+
+
+def thin_share(masks: list[np.ndarray], width_lr_px: float) -> float:
+    """Mean share of the masks' pixels that a morphological opening with a disc about
+    ``width_lr_px`` across (radius ceil(width / 2)) removes: the parts of the silhouette narrower than
+    that (legs, rails, handles). 0 for no masks."""
+    from skimage.morphology import binary_opening, disk
+
+    radius = max(1, math.ceil(width_lr_px / 2))
+    shares = []
+    for mask in masks:
+        m = np.asarray(mask) > 0.5
+        shares.append(float((m & ~binary_opening(m, disk(radius))).sum()) / max(1, int(m.sum())))
+    return float(np.mean(shares)) if shares else 0.0
+
+
+def fast_config(sr: str = "gaussian", psf_samples: int = 4) -> TrainConfig:
+    return TrainConfig(preset="fast", fields=FieldConfig(kind="grid"), sampler=SamplerConfig(),
+                       stage2_sampler=STAGE2_SAMPLER, sr=sr, psf_samples=psf_samples)
+
+
+MTF_FLOOR = 0.1
+"""Frequencies the PSF attenuates below this contrast are treated as lost (not recoverable by SR)."""
+
+
+def recoverable_cell_hr_px(sigma_hr_px: float) -> float:
+    """Half the shortest period (in HR pixels) that a Gaussian PSF of ``sigma_hr_px`` passes
+    with contrast >= MTF_FLOOR: the finest cell a reconstruction can be supervised at.
+
+    The Gaussian's MTF is exp(-2 pi^2 sigma^2 f^2); it falls to MTF_FLOOR at
+    f = sqrt(ln(1 / MTF_FLOOR) / 2) / (pi sigma) cycles per HR pixel. Finer detail is below
+    1/10 contrast in every LR image, so grid cells finer than this only fit noise (hash
+    collisions and Monte Carlo PSF noise show as grain). Never below one HR pixel.
+    For the default scene (sigma 1.5 HR px): f = 0.23, period 4.4 px, cell 2.2 HR px.
+    """
+    if sigma_hr_px <= 0:
+        return 1.0
+    f = math.sqrt(math.log(1.0 / MTF_FLOOR) / 2.0) / (math.pi * sigma_hr_px)
+    return max(1.0, 0.5 / f)
+
+
+def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0) -> TrainConfig:
+    """Capacity derived from the scene: resolution from the HR pixel footprint, PSF samples
+    from the PSF width, batch from the object's footprint; reasons are printed and saved.
+
+    ``capacity`` scales the derived model (grid resolutions, hash table, head widths) for
+    the capacity study: 0.5 = half, 2 = double; 1 is what the scene needs.
+    """
+    hr = hr_pixel_size(scene)
+    reasons = [f"HR pixel footprint {hr:.4f} scene units (object distance / focal / sr)"]
+    # Material detail: the finest hash level resolves the shortest period the LR images still carry.
+    detail_px = recoverable_cell_hr_px(scene.info.psf.sigma_hr_px)
+    mat_max = int(2 ** math.ceil(math.log2(2.0 / (detail_px * hr))))
+    mat_max = max(64, min(mat_max, 2048))
+    # Geometry: finest SDF level ~ 6 HR pixels per cell (smoothstep interpolation keeps
+    # normals continuous; finer shape detail shows through shading); three levels, each x2.
+    fine = int(min(128, max(32, round(2.0 / (6 * hr) / 8) * 8)))
+    base = FieldConfig()
+    table_log2, hidden = base.mat_table_log2, base.sdf_hidden
+    if capacity != 1.0:
+        fine = max(8, int(round(fine * capacity / 4)) * 4)
+        mat_max = max(16, int(round(mat_max * capacity)))
+        table_log2 = max(10, base.mat_table_log2 + int(round(3 * math.log2(capacity))))
+        hidden = max(8, int(round(base.sdf_hidden * capacity)))
+        reasons.append(f"capacity x{capacity:g} of what the scene needs (study setting)")
+    reasons.append(f"material hash grid finest level {mat_max} (cell {2 / mat_max:.4f}; the PSF leaves detail "
+                   f"down to {detail_px:.1f} HR pixels of {hr:.4f})")
+    levels = (max(4, fine // 4), max(4, fine // 2), fine)
+    reasons.append(f"SDF grids {levels} (finest cell {2 / fine:.4f} ~ {2 / fine / hr:.0f} HR pixels)")
+    mode = SRMode(sr)
+    sigma = scene.info.psf_sigma_lr_px
+    cell = 0.5
+    if mode == SRMode.GAUSSIAN:
+        # The Monte Carlo PSF estimate is unbiased for any count, so the count trades the noise of
+        # each pixel's estimate against pixels per step (the geometry learns from many, varied
+        # pixels). One antithetic pair {g, -g} per (0.4 LR px)^2 of PSF spread: 2 rays for the
+        # default scene's sigma 0.375. Measured there at 600 s (256 pixels x 2 rays per step vs
+        # 128 x 4 and 512 x 1, the same 512 rays): 39.80 dB HR PSNR vs 39.45 and 38.63 (views 040-042).
+        ns = int(min(16, 2 * math.ceil((sigma / 0.4) ** 2)))
+        reasons.append(f"PSF samples {ns} per LR pixel and step (sigma {sigma} LR px; one antithetic pair "
+                       f"per (0.4 LR px)^2 of PSF spread)")
+        # The shared lattice (--psf-sampler lattice) would use a spacing of ~4/3 sigma, between one
+        # HR pixel and half an LR pixel. Measured at 600 s on the default scene it was not better than
+        # i.i.d. Monte Carlo rays (38.25 vs 38.39 dB, normals 3.4 vs 3.1 deg: 4x4-pixel patches give
+        # the geometry less varied pixels per step); antithetic groups beat both (train_table.md).
+        cell = float(min(0.5, max(1.0 / scene.info.sr_factor, 4.0 * sigma / 3.0)))
+        reasons.append("PSF rays in antithetic pairs {g, -g} (rotated groups {g, -g, Jg, -Jg} from 4 rays): each "
+                       "still drawn from the Gaussian, the group's error is zero where the image varies linearly")
+        reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
+                       "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run, 32 + 12 samples "
+                       "per ray: +0.10 dB HR PSNR vs -1.44 dB with antithetic pairs, -1.95 dB with 2 i.i.d. rays -- "
+                       "the L1 of a noisy estimate pulls towards images flat within each pixel -- and -0.05 dB for "
+                       "noSR; stage2_table.md)")
+    elif mode == SRMode.BOX:
+        ns = scene.info.sr_factor ** 2
+        reasons.append(f"box PSF: {ns} rays per LR pixel (sr {scene.info.sr_factor})")
+    else:
+        ns = 1
+    n_in = int(sum(v.mask.sum() if v.mask is not None else v.image.shape[0] * v.image.shape[1]
+                   for v in scene.train_views()))
+    # Rays per step bounded so that one step stays ~0.1-0.2 s on 2 cores.
+    batch_in = int(max(64, min(512, 512 // ns)))
+    batch_stage2 = int(max(64, TrainConfig.batch_stage2 // ns))  # the paper's 700 rays per step
+    fields = FieldConfig(kind="grid", sdf_levels=levels, mat_max_res=mat_max, mat_table_log2=table_log2,
+                         sdf_hidden=hidden, mat_hidden=hidden)
+    stage1 = SamplerConfig()
+    stage2 = STAGE2_SAMPLER
+    reasons.append(f"stage 2 (geometry frozen): {STAGE2_SAMPLER.n_coarse} locating + "
+                   f"{STAGE2_SAMPLER.gradient_samples} gradient samples per ray (stage 1: {stage1.n_coarse} + "
+                   f"{stage1.gradient_samples}): the surface no longer moves and beta is small, so a few samples "
+                   "around the crossing carry its weight; 2.1x the stage-2 steps in the same time, +0.21 dB in 90 s "
+                   "vs +0.10 (stage2_table.md)")
+    reasons.append(f"stage 2 takes {AUTO_STAGE2_FRACTION:.0%} of the budget (paper: 10%): its steps are cheap and it "
+                   "keeps gaining (default scene, 600 s, 8 held-out views: 38.79 dB HR PSNR at 30% vs 38.22 at 15%; "
+                   "train_table.md)")
+    cfg = TrainConfig(preset="auto", fields=fields, sampler=stage1, stage2_sampler=stage2,
+                      stage2_fraction=AUTO_STAGE2_FRACTION, sr=sr, psf_samples=ns,
+                      psf_sampler="antithetic" if mode == SRMode.GAUSSIAN else "mc",
+                      stage2_psf_sampler="lattice" if mode == SRMode.GAUSSIAN else "", patch=4, lattice_cell=cell,
+                      batch_in=batch_in, batch_out=max(64, batch_in // 2), batch_stage2=batch_stage2,
+                      time_budget=time_budget)
+    reasons.append(f"{n_in} in-mask training pixels; {batch_in} per step x {ns} rays "
+                   f"(stage 2: {rays_per_step(cfg, 2)} rays per step)")
+    if read_normalization(scene.root) is not None:  # imported by srvol import
+        cfg = replace(cfg, capture=AUTO_CAPTURE_TERMS)
+        reasons.append(f"real-capture terms on ({AUTO_CAPTURE_TERMS.describe()}): an imported scene; ambient, pose "
+                       "off: each cost 0.3-0.4 dB, 2.5-2.9 deg normals on the bunny capture (capture_terms_table.md)")
+    # Beta: left free it *rose* on thin or hard shapes (stool: 0.24 by mid-run, a fog; rings 0.03);
+    # a cap falling to the scene's HR pixel footprint keeps the density as sharp as the images.
+    cfg = replace(cfg, beta_anneal=BETA_ANNEAL, beta_cap_end=round(hr, 5))
+    reasons.append(f"VolSDF beta capped by a bound falling from 0.1 to {hr:.4f} (the HR pixel footprint) over the "
+                   f"first {BETA_ANNEAL:.0%} of the run: left free it rose to 0.24 on the tuning scene stool (a fog); on "
+                   "bumpy, where it falls by itself, the cap changes nothing (37.13 vs 37.12 dB, 3.7 deg, 600 s)")
+    spacing_px = 2 * stage1.bound / stage1.n_coarse / (hr * scene.info.sr_factor)
+    thin = thin_share([v.mask for v in scene.train_views() if v.mask is not None], spacing_px)
+    if thin >= THIN_SHARE:
+        cfg = replace(cfg, silhouette_rays=0.5, sampler=replace(stage1, n_refine=8),
+                      stage2_sampler=replace(stage2, n_refine=8))
+        reasons.append(f"thin parts: {thin:.1%} of the mask pixels lie in parts narrower than the locating samples' "
+                       f"spacing ({spacing_px:.1f} LR px; >= {THIN_SHARE:.0%}): 8 refining samples where a ray may "
+                       "pass through a part the samples step over, half the out-of-mask rays near the silhouette "
+                       "(tuning scene stool, 600 s: 38.25 dB, 10.4 deg with them)")
+    else:
+        reasons.append(f"no thin parts: {thin:.1%} of the mask pixels lie in parts narrower than the locating samples' "
+                       f"spacing ({spacing_px:.1f} LR px; < {THIN_SHARE:.0%}), so no refining samples (on bumpy they "
+                       "cost 0.7 dB at 600 s)")
+    reasons.append(f"time budget {time_budget:.0f} s for both stages")
+    return replace(cfg, reasons=tuple(reasons))
