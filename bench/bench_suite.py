@@ -90,9 +90,19 @@ def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
     row.update({k: m[k] for k in RUN_KEYS if k in m})
     row.update(train_psnr=train_psnr_at_end(run), stage2_swing_db=stage2_swing_db(run),
                stage2_step_swing_db=stage2_swing_db(run, "psnr"),
-               iterations=s["iterations"], train_seconds=s["train_seconds"],
+               iterations=s["iterations"], train_seconds=s["train_seconds"], rules=run_rules(run),
                parameters=s.get("parameters", 0), peak_rss_gib=s.get("peak_rss_gib"))
     return row
+
+
+def run_rules(run: Path) -> str:
+    """The beta cap and refining samples a run trained with (config.json), in words: runs of an
+    older auto (beta free, no refining samples) and today's are told apart in the table."""
+    cfg = json.loads((run / "config.json").read_text())["train"]
+    cap = f"beta cap {cfg['beta_cap_end']:.4f}" if cfg.get("beta_anneal") and "beta_cap_end" in cfg else (
+        "beta cap 0.0020" if cfg.get("beta_anneal") else "beta free")
+    refine = cfg["sampler"].get("n_refine", 0)
+    return cap + (f", {refine} refining" if refine else "")
 
 
 def stage2_swing_db(run: Path, key: str = "probe_psnr") -> float:
@@ -177,19 +187,21 @@ def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
 def detail_lines(rows: list[dict]) -> list[str]:
     """One line per run: every metric of `srvol eval` and the run's cost."""
     lines = ["| scene | variant | HR PSNR | masked PSNR | SSIM | normal MAE (deg) | albedo PSNR | relit PSNR | "
-             "train PSNR (LR) | stage-2 swing dB (probe / step) | iterations | train s | parameters | peak RSS GiB |", "|" + "---|" * 14]
+             "train PSNR (LR) | stage-2 swing dB (probe / step) | iterations | train s | parameters | peak RSS GiB | "
+             "rules |", "|" + "---|" * 15]
     for r in rows:
         for sr, v in r["variants"].items():
             if "error" in v or v.get("missing"):
                 lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {'failed: ' + v['error'] if 'error' in v else 'not run'} "
-                             "|" + " |" * 12)
+                             "|" + " |" * 13)
                 continue
             lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {_f(v.get('psnr_hr'))} | {_f(v.get('psnr_hr_masked'))} | "
                          f"{_f(v.get('ssim_hr'), '.3f')} | {_f(v.get('normal_mae_deg'))} | {_f(v.get('albedo_psnr'))} | "
                          f"{_f(v.get('relit_psnr'))} | {_f(v.get('train_psnr'))} | "
                          f"{_f(v.get('stage2_swing_db'))} / {_f(v.get('stage2_step_swing_db'))} | "
                          f"{v['iterations']} | "
-                         f"{v['train_seconds']:.0f} | {v['parameters'] / 1e6:.2f} M | {_f(v.get('peak_rss_gib'))} |")
+                         f"{v['train_seconds']:.0f} | {v['parameters'] / 1e6:.2f} M | {_f(v.get('peak_rss_gib'))} | "
+                         f"{v.get('rules', '-')} |")
     return lines
 
 
@@ -201,7 +213,9 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "at a time (two `bench_suite` processes with disjoint --scenes, then --collect).", "",
              "HR metrics are means over each scene's held-out test views. bicubic: each test view's own LR image "
              "upsampled bicubically (a 2D reference that sees the test view, which no 3D method is given). Set "
-             "means are over the scenes with every column. Reproduce: `srvol bench suite "
+             "means are over the scenes with every column. `rules` (every run): the beta cap and refining samples "
+             "the run trained with -- `beta free` marks a run of auto before the cap and the thin-parts rule "
+             "(`srvol/presets.py`), not re-run since. Reproduce: `srvol bench suite "
              + command + "` (resumable; each run's commands below).", "",
              *summary_lines(rows, columns), "", "## Every run", "", *detail_lines(rows), "", "Commands:", ""]
     lines += [f"- {r['scene']} {VARIANTS[sr]}: `{v['command']}`" for r in rows for sr, v in r["variants"].items()]
