@@ -19,6 +19,7 @@ One render thread owns the relighter: every TICK_SECONDS it reads the widgets in
 from __future__ import annotations
 
 import json
+import os
 import socket
 import threading
 import time
@@ -395,15 +396,24 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run_view)
 
 
+STOP_SECONDS = 10.0
+"""Ctrl-C: how long the server's threads get to wind down before the process leaves without them."""
+
+
 def run_view(args) -> int:
     viewer = Viewer(args.source, ViewOptions(host=args.host, port=args.port, out=args.out, scene=args.scene))
-    print(f"srvol view: {viewer.source.label} at {viewer.url}  (Ctrl-C stops)", flush=True)
     try:
+        print(f"srvol view: {viewer.source.label} at {viewer.url}  (Ctrl-C stops)", flush=True)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         pass
     finally:
-        viewer.stop()
-    print("srvol view: stopped")
+        stopper = threading.Thread(target=viewer.stop, daemon=True)
+        stopper.start()
+        stopper.join(STOP_SECONDS)
+    print("srvol view: stopped", flush=True)
+    if stopper.is_alive() or any(t.is_alive() and not t.daemon for t in threading.enumerate()
+                                 if t is not threading.main_thread()):
+        os._exit(0)  # a server thread still running would keep the terminal waiting; saved files are whole
     return 0
