@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import threading
 import time
@@ -401,6 +402,10 @@ STOP_SECONDS = 10.0
 
 
 def run_view(args) -> int:
+    # The line below promises that Ctrl-C stops the server. A process started with SIGINT ignored
+    # (a job a non-interactive shell put in the background, and whatever it starts) would never see
+    # it: Python installs its KeyboardInterrupt handler only where SIGINT is not ignored.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     viewer = Viewer(args.source, ViewOptions(host=args.host, port=args.port, out=args.out, scene=args.scene))
     try:
         print(f"srvol view: {viewer.source.label} at {viewer.url}  (Ctrl-C stops)", flush=True)

@@ -165,14 +165,17 @@ def test_a_port_in_use_is_one_line_and_exit_2(asset, capsys):
 
 def test_the_command_serves_the_page_and_stops_on_ctrl_c(asset, tmp_path):
     """`srvol view ASSET --port P` as a user runs it: one line with the URL, the page is served
-    (viser's bundled client, no network), Ctrl-C (SIGINT) stops it with exit status 0."""
+    (viser's bundled client, no network), Ctrl-C (SIGINT) stops it with exit status 0 -- even when
+    it was started with SIGINT ignored."""
     import signal
     import sys
 
     port = free_port()
+    # started with SIGINT ignored, as a non-interactive shell starts a background job: Ctrl-C
+    # (SIGINT) must stop it all the same (the command installs its handler itself)
     proc = subprocess.Popen([sys.executable, "-m", "srvol", "view", str(asset), "--port", str(port),
                              "--out", str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
         line = ""
         end = time.monotonic() + 120
