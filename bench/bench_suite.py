@@ -98,11 +98,11 @@ def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
 def run_rules(run: Path) -> str:
     """The beta cap and refining samples a run trained with (config.json), in words: runs of an
     older auto (beta free, no refining samples) and today's are told apart in the table."""
-    cfg = json.loads((run / "config.json").read_text())["train"]
-    cap = f"beta cap {cfg['beta_cap_end']:.4f}" if cfg.get("beta_anneal") and "beta_cap_end" in cfg else (
-        "beta cap 0.0020" if cfg.get("beta_anneal") else "beta free")
-    refine = cfg["sampler"].get("n_refine", 0)
-    return cap + (f", {refine} refining" if refine else "")
+    from srvol.config import read_run_config
+
+    cfg = read_run_config(run).train
+    cap = f"beta cap {cfg.beta_cap_end:.4f}" if cfg.beta_anneal else "beta free"
+    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "")
 
 
 def stage2_swing_db(run: Path, key: str = "probe_psnr") -> float:

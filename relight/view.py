@@ -19,7 +19,6 @@ One render thread owns the relighter: every TICK_SECONDS it reads the widgets in
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
 import threading
@@ -397,10 +396,6 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run_view)
 
 
-STOP_SECONDS = 10.0
-"""Ctrl-C: how long the server's threads get to wind down before the process leaves without them."""
-
-
 def run_view(args) -> int:
     # The line below promises that Ctrl-C stops the server. A process started with SIGINT ignored
     # (a job a non-interactive shell put in the background, and whatever it starts) would never see
@@ -414,11 +409,6 @@ def run_view(args) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        stopper = threading.Thread(target=viewer.stop, daemon=True)
-        stopper.start()
-        stopper.join(STOP_SECONDS)
+        viewer.stop()
     print("srvol view: stopped", flush=True)
-    if stopper.is_alive() or any(t.is_alive() and not t.daemon for t in threading.enumerate()
-                                 if t is not threading.main_thread()):
-        os._exit(0)  # a server thread still running would keep the terminal waiting; saved files are whole
     return 0

@@ -50,8 +50,10 @@ THIN_SHARE = 0.03
 samples' spacing turn on the thin-parts sampling (refining samples, silhouette rays). On the
 tuning set: stool 9.0%, airplane 1.3%, the rest 0.0%; 3% is the gap's geometric middle."""
 
-THIN_PARTS_RECIPE = ("--refine-samples", "8", "--silhouette-rays", "0.5")
-"""The flags auto adds for a scene with thin parts (a user can add them to any run)."""
+THIN_REFINE_SAMPLES = 8
+THIN_SILHOUETTE_RAYS = 0.5
+THIN_PARTS_RECIPE = ("--refine-samples", str(THIN_REFINE_SAMPLES), "--silhouette-rays", str(THIN_SILHOUETTE_RAYS))
+"""What auto adds for a scene with thin parts, as the flags that add it to any run."""
 
 
 def thin_share(masks: list[np.ndarray], width_lr_px: float) -> float:
@@ -188,11 +190,12 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     spacing_px = 2 * stage1.bound / stage1.n_coarse / (hr * scene.info.sr_factor)
     thin = thin_share([v.mask for v in scene.train_views() if v.mask is not None], spacing_px)
     if thin >= THIN_SHARE:
-        cfg = replace(cfg, silhouette_rays=0.5, sampler=replace(stage1, n_refine=8),
-                      stage2_sampler=replace(stage2, n_refine=8))
+        cfg = replace(cfg, silhouette_rays=THIN_SILHOUETTE_RAYS, sampler=replace(stage1, n_refine=THIN_REFINE_SAMPLES),
+                      stage2_sampler=replace(stage2, n_refine=THIN_REFINE_SAMPLES))
         reasons.append(f"thin parts: {thin:.1%} of the mask pixels lie in parts narrower than the locating samples' "
-                       f"spacing ({spacing_px:.1f} LR px; >= {THIN_SHARE:.0%}): 8 refining samples where a ray may "
-                       "pass through a part the samples step over, half the out-of-mask rays near the silhouette "
+                       f"spacing ({spacing_px:.1f} LR px; >= {THIN_SHARE:.0%}): {THIN_REFINE_SAMPLES} refining "
+                       "samples where a ray may pass through a part the samples step over, half the out-of-mask rays "
+                       "near the silhouette "
                        "(tuning scene stool, 600 s: 38.25 dB, 10.4 deg with them)")
     else:
         reasons.append(f"no thin parts: {thin:.1%} of the mask pixels lie in parts narrower than the locating samples' "

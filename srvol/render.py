@@ -37,11 +37,11 @@ class SamplerConfig:
     n_uniform: int = 2
     bound: float = 1.0
     n_refine: int = 0
+    """No-grad samples added inside the first coarse interval where the surface may lie
+    (:func:`refine_first_possible_crossing`): thin parts that fall between coarse samples are found."""
     root_steps: int = 3
     """Regula falsi steps on the first crossing's bracket (:func:`first_crossing`): the band of
     gradient samples (+-4 beta) is centred on the surface, not on a linear interpolation of it."""
-    """No-grad samples added inside the first coarse interval where the surface may lie
-    (:func:`refine_first_possible_crossing`): thin parts that fall between coarse samples are found."""
 
     @property
     def gradient_samples(self) -> int:
@@ -205,6 +205,7 @@ def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitte
         beta = fields.beta
         w = render_weight_from_density(laplace_density(d, beta), deltas) * inside[:, None]
         parts = [_stratified(near, far, cfg.n_uniform, jitter)] if cfg.n_uniform else []
+
         def sdf_at(tr: Tensor) -> Tensor:
             return fields.sdf(rays.at(tr).reshape(-1, 3)).reshape(tr.shape)
 
