@@ -95,6 +95,14 @@ def recoverable_cell_hr_px(sigma_hr_px: float) -> float:
     return max(1.0, 0.5 / f)
 
 
+def auto_batches(psf_samples: int) -> tuple[int, int]:
+    """auto's in-mask pixels per step for stage 1 and stage 2 at ``psf_samples`` rays per pixel:
+    ~512 rays per stage-1 step (one step stays ~0.1-0.2 s on 2 cores) and the paper's 700 per
+    stage-2 step, never under 64 pixels."""
+    ns = max(1, psf_samples)
+    return int(max(64, min(512, 512 // ns))), int(max(64, TrainConfig.batch_stage2 // ns))
+
+
 def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0) -> TrainConfig:
     """Capacity derived from the scene: resolution from the HR pixel footprint, PSF samples
     from the PSF width, batch from the object's footprint; reasons are printed and saved.
@@ -129,17 +137,14 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     if mode == SRMode.GAUSSIAN:
         # The Monte Carlo PSF estimate is unbiased for any count, so the count trades the noise of
         # each pixel's estimate against pixels per step (the geometry learns from many, varied
-        # pixels). One antithetic pair {g, -g} per (0.4 LR px)^2 of PSF spread: 2 rays for the
-        # default scene's sigma 0.375. Measured there at 600 s (256 pixels x 2 rays per step vs
-        # 128 x 4 and 512 x 1, the same 512 rays): 39.80 dB HR PSNR vs 39.45 and 38.63 (views 040-042).
-        ns = int(min(16, 2 * math.ceil((sigma / 0.4) ** 2)))
-        reasons.append(f"PSF samples {ns} per LR pixel and step (sigma {sigma} LR px; one antithetic pair "
-                       f"per (0.4 LR px)^2 of PSF spread)")
-        # The shared lattice (--psf-sampler lattice) would use a spacing of ~4/3 sigma, between one
-        # HR pixel and half an LR pixel. Measured at 600 s on the default scene it was not better than
-        # i.i.d. Monte Carlo rays (38.25 vs 38.39 dB, normals 3.4 vs 3.1 deg: 4x4-pixel patches give
-        # the geometry less varied pixels per step); antithetic groups beat both (train_table.md).
-        cell = float(min(0.5, max(1.0 / scene.info.sr_factor, 4.0 * sigma / 3.0)))
+        # pixels). One antithetic pair {g, -g} per pixel whatever the PSF's width: at 512 rays per step,
+        # 256 pixels x 2 rays beat 128 x 4 and 512 x 1 on the default scene (sigma 0.375, 600 s: 39.80 dB
+        # HR PSNR vs 39.45 and 38.63) and 256 x 2 beat 85 x 6 on the tuning scene stool (sigma 0.6,
+        # 600 s: 40.21 dB, 8.1 deg vs 38.52 dB, 11.0 deg).
+        ns = 2
+        reasons.append(f"PSF samples {ns} per LR pixel and step (sigma {sigma} LR px): one antithetic pair for any "
+                       "PSF width -- pixels per step count more than rays per pixel (tuning scene stool, sigma 0.6, "
+                       "600 s: 256 pixels x 2 rays 40.21 dB, 8.1 deg vs 85 x 6 38.52 dB, 11.0 deg)")
         reasons.append("PSF rays in antithetic pairs {g, -g} (rotated groups {g, -g, Jg, -Jg} from 4 rays): each "
                        "still drawn from the Gaussian, the group's error is zero where the image varies linearly")
         reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
@@ -154,9 +159,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         ns = 1
     n_in = int(sum(v.mask.sum() if v.mask is not None else v.image.shape[0] * v.image.shape[1]
                    for v in scene.train_views()))
-    # Rays per step bounded so that one step stays ~0.1-0.2 s on 2 cores.
-    batch_in = int(max(64, min(512, 512 // ns)))
-    batch_stage2 = int(max(64, TrainConfig.batch_stage2 // ns))  # the paper's 700 rays per step
+    batch_in, batch_stage2 = auto_batches(ns)
     fields = FieldConfig(kind="grid", sdf_levels=levels, mat_max_res=mat_max, mat_table_log2=table_log2,
                          sdf_hidden=hidden, mat_hidden=hidden)
     stage1 = SamplerConfig()

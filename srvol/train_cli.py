@@ -140,7 +140,7 @@ def _capture_terms(scene, args, default):
 
 
 def build_config(scene, args):
-    from srvol.presets import auto_config, fast_config, paper_config
+    from srvol.presets import auto_batches, auto_config, fast_config, paper_config
 
     if not (math.isfinite(args.capacity) and 0.1 <= args.capacity <= 8):
         raise SrvolError(f"--capacity {args.capacity}: must be between 0.1 and 8")
@@ -164,8 +164,12 @@ def build_config(scene, args):
         if args.psf_samples < 1:
             raise SrvolError(f"--psf-samples {args.psf_samples}: must be >= 1")
         changes["psf_samples"] = args.psf_samples
+        batch_in = cfg.batch_in
+        if args.preset == "auto" and args.sr == "gaussian":  # auto keeps its rays per step
+            batch_in, batch_stage2 = auto_batches(args.psf_samples)
+            changes.update(batch_in=batch_in, batch_out=max(64, batch_in // 2), batch_stage2=batch_stage2)
         if args.sr == "gaussian":
-            changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {cfg.batch_in} in-mask "
+            changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {batch_in} in-mask "
                                                 f"pixels per step x {args.psf_samples} rays",)
     if args.psf_sampler is not None:
         changes["psf_sampler"] = args.psf_sampler

@@ -251,8 +251,8 @@ def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
 
 
 def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
-    """auto derives N_s = 2 for the default scene; --psf-samples 4 keeps auto's sampler and pixels
-    per step, and the printed reasons say what was asked instead of the derived count."""
+    """auto derives N_s = 2 (an antithetic pair) for any PSF; --psf-samples 4 keeps auto's sampler and
+    its rays per step (half the pixels, each with 4 rays), and the printed reasons say what was asked."""
     import argparse
 
     from srvol.train_cli import add_parser, build_config
@@ -264,7 +264,11 @@ def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
     args = ap.parse_args(["train", str(default_scene), "--out", "unused", "--psf-samples", "4"])
     cfg = build_config(scene, args)
     assert (cfg.psf_samples, cfg.psf_sampler) == (4, "antithetic")
+    derived = auto_config(scene, "gaussian", 60.0)
+    assert cfg.batch_in * 4 == derived.batch_in * 2 and cfg.batch_stage2 * 4 == derived.batch_stage2 * 2
     assert cfg.reasons[-1] == f"--psf-samples 4 (asked): {cfg.batch_in} in-mask pixels per step x 4 rays"
+    wide = replace(scene, info=replace(scene.info, psf_sigma_lr_px=0.75))
+    assert auto_config(wide, "gaussian", 60.0).psf_samples == 2
 
 
 def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_scene):
