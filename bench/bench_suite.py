@@ -102,7 +102,18 @@ def run_rules(run: Path) -> str:
 
     cfg = read_run_config(run).train
     cap = f"beta cap {cfg.beta_cap_end:.4f}" if cfg.beta_anneal else "beta free"
-    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "")
+    rays = f", {cfg.psf_samples} PSF rays" if cfg.sr == "gaussian" else ""
+    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays
+
+
+def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:
+    """A variant's row from the table before (``rows``: :func:`previous_rows`), for a run whose folder
+    is not on this machine (runs stay in the ignored work folder); its rules say so."""
+    old = next((r["variants"].get(sr) for r in rows if r["scene"] == name), None)
+    if not old or "psnr_hr" not in old:
+        return None
+    rules = old.get("rules", "-")
+    return {**old, "rules": rules if rules.endswith("(earlier run)") else f"{rules} (earlier run)"}
 
 
 def stage2_swing_db(run: Path, key: str = "probe_psnr") -> float:
@@ -118,6 +129,12 @@ def stage2_swing_db(run: Path, key: str = "probe_psnr") -> float:
     return max(devs) if devs else float("nan")
 
 
+def previous_rows(args) -> list[dict]:
+    """The committed table's rows (``--results``/suite_table.json); none for a --synth variant."""
+    path = args.results / "suite_table.json"
+    return [] if args.synth or not path.is_file() else json.loads(path.read_text())
+
+
 def scene_row(name: str, args, work: Path) -> dict:
     """Everything measured on one scene: its capture, the bicubic reference and each variant."""
     from srvol.data import load_scene
@@ -128,13 +145,18 @@ def scene_row(name: str, args, work: Path) -> dict:
     scene_dir = work / "scenes" / key if args.collect else ensure_scene(name, work, args.synth)
     row = {"scene": name, "set": scene_set(name), "description": get_scene(name).description, "variants": {}}
     if not (scene_dir / "cameras.json").is_file():
-        return row
+        before = previous_rows(args) if args.collect else []
+        old = next((r for r in before if r["scene"] == name), None)
+        carried = {sr: carried_over(before, name, sr) for sr in args.variants}
+        return {**old, "variants": {sr: v for sr, v in carried.items() if v}} if old else row
     scene = load_scene(scene_dir)
     v0 = scene.views[scene.test[0]].camera
     row.update(lr=f"{v0.width}x{v0.height}", psf_sigma=scene.info.psf_sigma_lr_px,
                views=f"{len(scene.train)}+{len(scene.test)}", bicubic=bicubic_reference(scene))
     for sr in args.variants:
         row["variants"][sr] = train_and_eval(scene_dir, run_folder(work, key, sr, args), sr, args)
+        if args.collect and row["variants"][sr].get("missing"):
+            row["variants"][sr] = carried_over(previous_rows(args), name, sr) or row["variants"][sr]
         print(f"{name} {sr}: " + json.dumps({k: v for k, v in row["variants"][sr].items() if k != "command"}),
               flush=True)
     return row
@@ -213,9 +235,10 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "at a time (two `bench_suite` processes with disjoint --scenes, then --collect).", "",
              "HR metrics are means over each scene's held-out test views. bicubic: each test view's own LR image "
              "upsampled bicubically (a 2D reference that sees the test view, which no 3D method is given). Set "
-             "means are over the scenes with every column. `rules` (every run): the beta cap and refining samples "
-             "the run trained with -- `beta free` marks a run of auto before the cap and the thin-parts rule "
-             "(`srvol/presets.py`), not re-run since. Reproduce: `srvol bench suite "
+             "means are over the scenes with every column. `rules` (every run): the beta cap, refining samples and "
+             "PSF rays per pixel the run trained with -- `beta free` marks a run of auto before the cap and the "
+             "thin-parts rule (`srvol/presets.py`), `(earlier run)` a row carried over from the table before "
+             "(its run folder was not on the machine that collected this one). Reproduce: `srvol bench suite "
              + command + "` (resumable; each run's commands below).", "",
              *summary_lines(rows, columns), "", "## Every run", "", *detail_lines(rows), "", "Commands:", ""]
     lines += [f"- {r['scene']} {VARIANTS[sr]}: `{v['command']}`" for r in rows for sr, v in r["variants"].items()]

@@ -44,3 +44,27 @@ def test_stage2_swing_is_the_largest_distance_from_the_running_median(tmp_path):
     (tmp_path / "log.jsonl").write_text("\n".join(json.dumps(r) for r in lines) + "\n")
     assert stage2_swing_db(tmp_path, "psnr") == 5.5
     assert stage2_swing_db(tmp_path) == 0.25  # the probe: medians 31, 31.25, 31.5, 31.5
+
+
+def test_collect_carries_over_committed_rows_whose_runs_are_not_here(tmp_path):
+    """Runs live in the ignored work folder: a --collect on another machine keeps the committed
+    table's rows for the runs it lacks (their rules marked); a run it never had stays out."""
+    results = tmp_path / "results"
+    results.mkdir()
+    old = {"scene": "cup", "set": "report", "lr": "160x120", "psf_sigma": 0.45, "views": "40+6",
+           "bicubic": {"psnr_hr": 42.3, "psnr_hr_masked": 36.4},
+           "variants": {"gaussian": {"command": "srvol train ...", "psnr_hr": 35.3, "psnr_hr_masked": 29.6,
+                                        "iterations": 4889, "train_seconds": 596.5, "parameters": 4892718,
+                                        "rules": "beta cap 0.0038"}}}
+    (results / "suite_table.json").write_text(json.dumps([old]))
+    args = ["--collect", "--scenes", "cup,die", "--work", str(tmp_path / "work"), "--results", str(results)]
+    assert bench_suite.main(args) == 0
+    rows = {r["scene"]: r for r in json.loads((results / "suite_table.json").read_text())}
+    cup = rows["cup"]["variants"]
+    assert cup["gaussian"]["psnr_hr"] == 35.3 and cup["gaussian"]["rules"] == "beta cap 0.0038 (earlier run)"
+    assert "none" not in cup and rows["cup"]["bicubic"]["psnr_hr"] == 42.3
+    assert rows["die"]["variants"] == {}
+    # collected again, the mark is not doubled
+    assert bench_suite.main(args) == 0
+    again = json.loads((results / "suite_table.json").read_text())[0]["variants"]["gaussian"]["rules"]
+    assert again == "beta cap 0.0038 (earlier run)"
