@@ -144,8 +144,8 @@ def scene_row(name: str, args, work: Path) -> dict:
     key = scene_key(name, args.synth)
     scene_dir = work / "scenes" / key if args.collect else ensure_scene(name, work, args.synth)
     row = {"scene": name, "set": scene_set(name), "description": get_scene(name).description, "variants": {}}
+    before = previous_rows(args) if args.collect else []
     if not (scene_dir / "cameras.json").is_file():
-        before = previous_rows(args) if args.collect else []
         old = next((r for r in before if r["scene"] == name), None)
         carried = {sr: carried_over(before, name, sr) for sr in args.variants}
         return {**old, "variants": {sr: v for sr, v in carried.items() if v}} if old else row
@@ -156,7 +156,7 @@ def scene_row(name: str, args, work: Path) -> dict:
     for sr in args.variants:
         row["variants"][sr] = train_and_eval(scene_dir, run_folder(work, key, sr, args), sr, args)
         if args.collect and row["variants"][sr].get("missing"):
-            row["variants"][sr] = carried_over(previous_rows(args), name, sr) or row["variants"][sr]
+            row["variants"][sr] = carried_over(before, name, sr) or row["variants"][sr]
         print(f"{name} {sr}: " + json.dumps({k: v for k, v in row["variants"][sr].items() if k != "command"}),
               flush=True)
     return row

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -95,17 +96,28 @@ def recoverable_cell_hr_px(sigma_hr_px: float) -> float:
     return max(1.0, 0.5 / f)
 
 
-def auto_batches(psf_samples: int) -> tuple[int, int]:
-    """auto's in-mask pixels per step for stage 1 and stage 2 at ``psf_samples`` rays per pixel:
-    ~512 rays per stage-1 step (one step stays ~0.1-0.2 s on 2 cores) and the paper's 700 per
-    stage-2 step, never under 64 pixels."""
+class AutoBatches(NamedTuple):
+    """auto's pixels per step (the TrainConfig fields of the same names)."""
+
+    batch_in: int
+    batch_out: int
+    batch_stage2: int
+
+
+def auto_batches(psf_samples: int) -> AutoBatches:
+    """auto's pixels per step at ``psf_samples`` rays per pixel: ~512 in-mask rays per stage-1 step
+    (one step stays ~0.1-0.2 s on 2 cores), half as many out-of-mask pixels, and the paper's 700
+    rays per stage-2 step; never under 64 pixels."""
     ns = max(1, psf_samples)
-    return int(max(64, min(512, 512 // ns))), int(max(64, TrainConfig.batch_stage2 // ns))
+    batch_in = int(max(64, min(512, 512 // ns)))
+    return AutoBatches(batch_in, max(64, batch_in // 2), int(max(64, TrainConfig.batch_stage2 // ns)))
 
 
 def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0) -> TrainConfig:
-    """Capacity derived from the scene: resolution from the HR pixel footprint, PSF samples
-    from the PSF width, batch from the object's footprint; reasons are printed and saved.
+    """Capacity derived from the scene: resolution from the HR pixel footprint, the stage-2
+    lattice spacing from the PSF width, the beta cap from the footprint, thin-parts sampling from
+    the masks; one antithetic pair of PSF rays per pixel (:func:`auto_batches`: pixels per step).
+    Reasons are printed and saved.
 
     ``capacity`` scales the derived model (grid resolutions, hash table, head widths) for
     the capacity study: 0.5 = half, 2 = double; 1 is what the scene needs.
@@ -159,7 +171,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         ns = 1
     n_in = int(sum(v.mask.sum() if v.mask is not None else v.image.shape[0] * v.image.shape[1]
                    for v in scene.train_views()))
-    batch_in, batch_stage2 = auto_batches(ns)
+    batches = auto_batches(ns)
     fields = FieldConfig(kind="grid", sdf_levels=levels, mat_max_res=mat_max, mat_table_log2=table_log2,
                          sdf_hidden=hidden, mat_hidden=hidden)
     stage1 = SamplerConfig()
@@ -176,9 +188,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                       stage2_fraction=AUTO_STAGE2_FRACTION, sr=sr, psf_samples=ns,
                       psf_sampler="antithetic" if mode == SRMode.GAUSSIAN else "mc",
                       stage2_psf_sampler="lattice" if mode == SRMode.GAUSSIAN else "", patch=4, lattice_cell=cell,
-                      batch_in=batch_in, batch_out=max(64, batch_in // 2), batch_stage2=batch_stage2,
+                      **batches._asdict(),
                       time_budget=time_budget)
-    reasons.append(f"{n_in} in-mask training pixels; {batch_in} per step x {ns} rays "
+    reasons.append(f"{n_in} in-mask training pixels; {batches.batch_in} per step x {ns} rays "
                    f"(stage 2: {rays_per_step(cfg, 2)} rays per step)")
     if read_normalization(scene.root) is not None:  # imported by srvol import
         cfg = replace(cfg, capture=AUTO_CAPTURE_TERMS)

@@ -166,8 +166,9 @@ def build_config(scene, args):
         changes["psf_samples"] = args.psf_samples
         batch_in = cfg.batch_in
         if args.preset == "auto" and args.sr == "gaussian":  # auto keeps its rays per step
-            batch_in, batch_stage2 = auto_batches(args.psf_samples)
-            changes.update(batch_in=batch_in, batch_out=max(64, batch_in // 2), batch_stage2=batch_stage2)
+            batches = auto_batches(args.psf_samples)
+            batch_in = batches.batch_in
+            changes.update(batches._asdict())
         if args.sr == "gaussian":
             changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {batch_in} in-mask "
                                                 f"pixels per step x {args.psf_samples} rays",)
