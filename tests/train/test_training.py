@@ -212,6 +212,26 @@ def test_auto_capacity_scales_the_scene_derived_model(default_scene):
     assert sizes[0.5] < sizes[1.0] < sizes[2.0]
 
 
+def test_auto_sizes_the_sdf_grids_by_the_pixel_footprint(default_scene):
+    """The finest SDF cell is ~12 HR pixels: at a footprint of 0.0152 scene units (the default scene
+    at LR 40x30) that is 2 / (12 x 0.0152) = 11 cells, clamped up to 16 -- three levels 4/8/16; the
+    full-size default scene (footprint 0.0051) gets 2 / 0.061 = 33 -> 32, i.e. 8/16/32. The material's
+    finest level is the power of two whose cell is one recoverable detail (2.2 HR px at sigma 1.5)."""
+    from srvol.config import hr_pixel_size
+    from srvol.presets import _multiple_of_4, _pow2_at_least
+
+    scene = load_scene(default_scene)
+    hr = hr_pixel_size(scene)
+    cfg = auto_config(scene, "gaussian", 60.0)
+    assert abs(hr - 0.0152) < 0.0005
+    assert cfg.fields.sdf_levels == (4, 8, 16)
+    assert cfg.fields.sdf_hidden == cfg.fields.mat_hidden == 32 and cfg.fields.mat_table_log2 == 14
+    assert _multiple_of_4(2.0 / (12 * 0.00505), 16, 64) == 32
+    assert _pow2_at_least(1.0 / (2.196 * 0.00505), 32, 1024) == 128
+    assert _pow2_at_least(1.0 / (2.196 * hr), 32, 1024) == cfg.fields.mat_max_res == 32
+    assert any("SDF cell ~12 HR pixels" in r for r in cfg.reasons)
+
+
 def test_psf_warmup_trades_rays_per_pixel_for_pixels_at_equal_rays(default_scene):
     """--psf-warmup 0.5 with 4 rays per pixel: for the first half, 1 Gaussian-offset ray per pixel and
     4x the pixels; then 4 rays per pixel. Stage 2 and the other SR modes never warm up; the rays per
