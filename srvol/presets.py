@@ -159,7 +159,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     reasons.append(f"model sized for what {hr:.4f}-unit pixels can supervise in minutes: SDF cell ~{SDF_CELL_HR_PX} HR "
                    f"pixels, {AUTO_HEAD_WIDTH}-wide heads, a 2^{AUTO_TABLE_LOG2} hash table -- on the tuning set (600 s) "
                    "twice this (SDF cell 6 HR px, 64-wide heads, 2^17) fitted grain into the surface: shiny 30.40 dB "
-                   "HR PSNR, 5.1 deg vs 32.62, 3.8 deg here; bumpy 37.09 vs 36.78; stool 40.21 vs 39.60 (mean +0.44 dB "
+                   "HR PSNR, 5.1 deg vs 32.62, 3.8 deg here; bumpy 37.09 vs 36.78; stool 40.21 vs 39.60 (mean +0.43 dB "
                    "for the smaller model; suite_tuning.md)")
     if capacity != 1.0:
         reasons.append(f"capacity x{capacity:g} of what the scene needs (study setting)")
