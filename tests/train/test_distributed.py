@@ -56,7 +56,10 @@ def test_two_gloo_ranks_train_what_one_process_trains_on_their_union(default_sce
     assert one.keys() == two.keys()
     moved = 0.0
     for k in one:
-        assert torch.allclose(one[k], two[k], atol=1e-5, rtol=0), (k, (one[k] - two[k]).abs().max())
+        # 1e-4: the all-reduce sums the two halves in another order, and Adam divides each step by
+        # sqrt(v) + eps, so a weight whose gradients are near eps carries the rounding up to ~3e-5
+        # (auto's 32-wide heads, albedo_net.2); steps move the weights by > 1e-3 (below)
+        assert torch.allclose(one[k], two[k], atol=1e-4, rtol=0), (k, (one[k] - two[k]).abs().max())
         moved = max(moved, float((one[k] - _config_init(scene)[k]).abs().max()))
     assert moved > 1e-3  # the parameters did move: the comparison is not of two untouched models
     # rank 0 alone wrote the log: one line per step, both stages
