@@ -102,9 +102,10 @@ SDF_CELL_HR_PX = 12
 which breaks up glossy highlights (tuning scene shiny, 600 s: 6 HR px 30.40 dB, 12 HR px with the smaller
 heads and table below 32.62 dB)."""
 
-MAT_CELLS_PER_DETAIL = 1.0
-"""auto: material hash grid cells per recoverable detail (:func:`recoverable_cell_hr_px`): the finest level
-is the power of two whose cell is at least one such detail, in 32..1024."""
+MAT_CELL_DETAILS = 2.0
+"""auto: the finest material cell spans up to this many recoverable details (:func:`recoverable_cell_hr_px`,
+a half-period each): one shortest period the PSF passes. The finest level is the smallest power of two
+(in 32..1024) whose cell 2 / level is no wider than that."""
 
 AUTO_HEAD_WIDTH = 32
 AUTO_TABLE_LOG2 = 14
@@ -149,9 +150,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     """
     hr = hr_pixel_size(scene)
     reasons = [f"HR pixel footprint {hr:.4f} scene units (object distance / focal / sr)"]
-    # Material detail: the finest hash level's cell spans the shortest half-period the LR images still carry.
+    # Material detail: the finest hash level's cell spans the shortest period the LR images still carry.
     detail_px = recoverable_cell_hr_px(scene.info.psf.sigma_hr_px)
-    mat_max = _pow2_at_least(MAT_CELLS_PER_DETAIL / (detail_px * hr), 32 * capacity, 1024 * capacity)
+    mat_max = _pow2_at_least(2.0 / (MAT_CELL_DETAILS * detail_px * hr), 32 * capacity, 1024 * capacity)
     # Geometry: finest SDF level ~ SDF_CELL_HR_PX HR pixels per cell; three levels, each x2.
     fine = _multiple_of_4(2.0 / (SDF_CELL_HR_PX * hr) * capacity, 16 * capacity, 64 * capacity)
     table_log2 = max(10, AUTO_TABLE_LOG2 + int(round(3 * math.log2(capacity))))

@@ -216,7 +216,8 @@ def test_auto_sizes_the_sdf_grids_by_the_pixel_footprint(default_scene):
     """The finest SDF cell is ~12 HR pixels: at a footprint of 0.0152 scene units (the default scene
     at LR 40x30) that is 2 / (12 x 0.0152) = 11 cells, clamped up to 16 -- three levels 4/8/16; the
     full-size default scene (footprint 0.0051) gets 2 / 0.061 = 33 -> 32, i.e. 8/16/32. The material's
-    finest level is the power of two whose cell is one recoverable detail (2.2 HR px at sigma 1.5)."""
+    finest level is the power of two whose cell spans at most two recoverable details (2 x 2.2 HR px at
+    sigma 1.5: one shortest period the PSF passes)."""
     from srvol.config import hr_pixel_size
     from srvol.presets import _multiple_of_4, _pow2_at_least
 
