@@ -76,6 +76,11 @@ def add_parser(sub) -> None:
     p.add_argument("--normal-smoothness", type=float, metavar="W",
                    help="stage 1: weight of a term that keeps the normal from turning within one SDF grid cell "
                         "(mean |n(x) - n(x + e)|^2 on the rendered surface; 0 = off)")
+    p.add_argument("--sdf-interpolation", choices=("smoothstep", "bspline"),
+                   help="grid presets: how the SDF grids interpolate (default smoothstep). bspline (quadratic) "
+                        "draws flat faces flat but costs 3x per SDF query: in 600 s the tuning scene stool (flat "
+                        "faces) gained 0.59 dB and 1.5 deg of normals, shiny (smooth, glossy) lost 0.64 dB "
+                        "(bench/results/suite_tuning.md)")
     p.add_argument("--capacity", type=float, default=1.0,
                    help="auto preset: scale the scene-derived model size (grids, hash table, head widths) by "
                         "this factor -- for capacity studies (default 1: what the scene needs)")
@@ -203,6 +208,10 @@ def build_config(scene, args):
         if not (math.isfinite(args.normal_smoothness) and 0 <= args.normal_smoothness <= 10):
             raise SrvolError(f"--normal-smoothness {args.normal_smoothness}: must be between 0 and 10")
         changes["lambda_smooth"] = args.normal_smoothness
+    if args.sdf_interpolation is not None:
+        if cfg.fields.kind != "grid":
+            raise SrvolError(f"--sdf-interpolation applies to the grid presets (fast, auto), not {cfg.preset}")
+        changes["fields"] = replace(cfg.fields, sdf_interpolation=args.sdf_interpolation)
     capture = _capture_terms(scene, args, cfg.capture)
     if capture != cfg.capture:
         changes["capture"] = capture

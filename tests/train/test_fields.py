@@ -1,6 +1,7 @@
-"""The grid fields' activation: a rounded ReLU with second derivatives, and old runs load as trained."""
+"""The grid fields: a rounded ReLU with second derivatives, SDF grids that draw a plane flat, and old runs load as trained."""
 import torch
 
+from srvol.encodings import DenseGrids
 from srvol.fields import FieldConfig, SceneFields, SharpGELU
 
 
@@ -23,3 +24,55 @@ def test_a_config_saved_before_the_activation_choice_loads_with_softplus():
     assert old.activation == "softplus"
     assert isinstance(SceneFields(old, learn_intensity=False).sdf_net.head[1], torch.nn.Softplus)
     assert isinstance(SceneFields(FieldConfig(), learn_intensity=False).sdf_net.head[1], SharpGELU)
+
+
+def _tilted_plane_grid(interpolation: str, res: int = 16) -> DenseGrids:
+    """One level, one channel, each node holding 0.3 i + 0.5 j - 0.2 k (a plane through the grid)."""
+    grid = DenseGrids((res,), 1, interpolation=interpolation)
+    i, j, k = torch.meshgrid(*[torch.arange(res, dtype=torch.float32)] * 3, indexing="ij")
+    with torch.no_grad():
+        grid.table[:] = (0.3 * i + 0.5 * j - 0.2 * k).reshape(-1, 1)
+    return grid
+
+
+def test_bspline_sdf_grids_draw_a_tilted_plane_with_one_normal_where_smoothstep_terraces_it():
+    x = (torch.rand(2000, 3, generator=torch.Generator().manual_seed(0)) * 1.6 - 0.8).requires_grad_(True)
+    u = (x.detach() + 1) * 0.5 * 15  # grid coordinates of res 16
+    slope = torch.tensor([0.3, 0.5, -0.2]) * 7.5  # d(node value)/dx: 7.5 grid steps per scene unit
+    bspline = _tilted_plane_grid("bspline")
+    value = bspline(x)[:, 0]
+    assert float((value.detach() - u @ torch.tensor([0.3, 0.5, -0.2])).abs().max()) < 1e-4  # exact on a plane
+    (g,) = torch.autograd.grad(value.sum(), x)
+    assert float((g - slope).abs().max()) < 1e-4  # one gradient everywhere: the normal does not wobble
+    (g_smooth,) = torch.autograd.grad(_tilted_plane_grid("smoothstep")(x)[:, 0].sum(), x)
+    # smoothstep's slope is 0 at every node and 1.5x the plane's between them: the normal turns cell by cell
+    assert float(g_smooth[:, 1].min()) < 0.2 * float(slope[1]) and float(g_smooth[:, 1].max()) > 1.4 * float(slope[1])
+
+
+def test_a_config_saved_before_the_interpolation_choice_loads_with_smoothstep():
+    saved = FieldConfig(sdf_interpolation="smoothstep").to_json()
+    del saved["sdf_interpolation"]
+    assert FieldConfig.from_json(saved).sdf_interpolation == "smoothstep"
+    assert SceneFields(FieldConfig(sdf_interpolation="bspline"), learn_intensity=False).sdf_net.grids.interpolation == "bspline"
+
+
+def test_sdf_interpolation_flag_reaches_the_fields_and_the_saved_config(default_scene):
+    import argparse
+
+    import pytest
+
+    from srvol.config import TrainConfig
+    from srvol.data import load_scene
+    from srvol.errors import SrvolError
+    from srvol.train_cli import add_parser, build_config
+
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+    scene = load_scene(default_scene)
+    args = ["train", str(default_scene), "--out", "u"]
+    assert build_config(scene, ap.parse_args(args)).fields.sdf_interpolation == "smoothstep"
+    cfg = build_config(scene, ap.parse_args(args + ["--sdf-interpolation", "bspline"]))
+    assert cfg.fields.sdf_interpolation == "bspline" and "(bspline)" in cfg.fields.parameter_summary()
+    assert TrainConfig.from_json(cfg.to_json()) == cfg
+    with pytest.raises(SrvolError, match="--sdf-interpolation"):
+        build_config(scene, ap.parse_args(args + ["--sdf-interpolation", "bspline", "--preset", "paper"]))

@@ -1,0 +1,156 @@
+"""Input encodings of the fields: positional encoding (the paper's MLPs), multi-resolution dense
+grids (the grid SDF; second derivatives exist, for normals inside losses) and multi-resolution hash
+grids (the material). All grid levels are read with one gather per call."""
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn as nn
+from torch import Tensor
+
+def positional_encoding(x: Tensor, n_freqs: int) -> Tensor:
+    """[x, sin(2^k pi x), cos(2^k pi x)] for k < n_freqs: (N, 3) -> (N, 3 + 6 n_freqs)."""
+    if n_freqs == 0:
+        return x
+    freqs = (2.0 ** torch.arange(n_freqs, device=x.device, dtype=x.dtype)) * math.pi
+    xf = x[:, None, :] * freqs[:, None]
+    return torch.cat([x, torch.sin(xf).flatten(1), torch.cos(xf).flatten(1)], dim=-1)
+
+
+def _gather_rows(table: Tensor, idx: Tensor) -> Tensor:
+    """table[idx] via index_select: its backward is index_add (measured ~5x faster on CPU than
+    embedding's sorting backward) and is itself differentiable (double backward for normals)."""
+    return torch.index_select(table, 0, idx.reshape(-1)).reshape(*idx.shape, table.shape[1])
+
+
+_CORNERS = torch.tensor([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])  # (8, 3)
+
+
+def _cell_corners(x: Tensor, res: int, smooth: bool) -> tuple[Tensor, Tensor]:
+    """Integer corner coordinates (N, 8, 3) of the cell around each point of a res^3 grid over
+    [-1, 1]^3 (grid points at the ends), and the interpolation weights (N, 8).
+
+    ``smooth``: smoothstep weights (C1 across cells: continuous normals) instead of trilinear.
+    """
+    u = ((x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (res - 1)).clamp(0.0, res - 1 - 1e-4)
+    # a NaN point (a diverged step) reads corner 0 with NaN weights: the loss turns NaN and training
+    # rolls back, instead of indexing out of the table
+    i0 = torch.nan_to_num(u.detach().floor(), nan=0.0)
+    f = u - i0
+    if smooth:
+        f = f * f * (3.0 - 2.0 * f)
+    corners = _CORNERS.to(x.device)
+    c = i0.long()[:, None, :] + corners[None]  # (N, 8, 3)
+    # per-axis factors (N, 3, 2) = [1 - f, f]; a corner's weight is the product of its three
+    fx = torch.stack([1.0 - f, f], dim=-1)
+    w = fx[:, 0, corners[:, 0]] * fx[:, 1, corners[:, 1]] * fx[:, 2, corners[:, 2]]
+    return c, w
+
+
+_CORNERS27 = torch.tensor([[a, b, c] for a in range(3) for b in range(3) for c in range(3)]) - 1  # (27, 3)
+
+
+def _bspline_corners(x: Tensor, res: int) -> tuple[Tensor, Tensor]:
+    """The 27 grid nodes (N, 27, 3) around each point of a res^3 grid over [-1, 1]^3 and their
+    uniform quadratic B-spline weights (N, 27): C1 across cells (continuous normals) and, unlike
+    smoothstep, exact on linear functions (a tilted plane's gradient is constant, not terraced)."""
+    u = ((x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (res - 1)).clamp(0.0, res - 1 - 1e-4)
+    j0 = torch.nan_to_num((u.detach() + 0.5).floor(), nan=0.0)
+    t = u - j0 + 0.5
+    fx = torch.stack([0.5 * (1.0 - t) ** 2, 0.75 - (t - 0.5) ** 2, 0.5 * t * t], dim=-1)  # (N, 3, 3)
+    corners = _CORNERS27.to(x.device)
+    c = (j0.long()[:, None, :] + corners[None]).clamp(0, res - 1)  # (N, 27, 3)
+    k = corners + 1
+    w = fx[:, 0, k[:, 0]] * fx[:, 1, k[:, 1]] * fx[:, 2, k[:, 2]]
+    return c, w
+
+
+SDF_INTERPOLATIONS = ("smoothstep", "bspline")
+
+
+class DenseGrids(nn.Module):
+    """Multi-resolution dense feature grids over [-1, 1]^3 with smoothstep interpolation.
+
+    All levels live in one table and are read with one gather (not grid_sample), so
+    that second derivatives exist: the SDF's normal is an autograd gradient, and the
+    eikonal and shading losses differentiate through it.
+
+    Smoothstep rather than trilinear, though only trilinear reproduces a plane exactly: on the stool
+    scene (flat seat, thin legs; 300 s, 1 thread, the thin-parts flags) trilinear grids gave 34.85 dB
+    HR PSNR and 13.8 deg normal MAE against 35.92 dB and 13.2 deg with smoothstep.
+    """
+
+    def __init__(self, levels: tuple[int, ...], channels: int, init_std: float = 1e-4,
+                 interpolation: str = "smoothstep"):
+        super().__init__()
+        if interpolation not in SDF_INTERPOLATIONS:
+            raise ValueError(f"unknown SDF grid interpolation {interpolation!r} ({', '.join(SDF_INTERPOLATIONS)})")
+        self.interpolation = interpolation
+        self.levels = tuple(levels)
+        self.offsets = [0]
+        for r in self.levels:
+            self.offsets.append(self.offsets[-1] + r ** 3)
+        self.channels = channels
+        self.table = nn.Parameter(torch.randn(self.offsets[-1], channels) * init_std)
+
+    @property
+    def out_dim(self) -> int:
+        return len(self.levels) * self.channels
+
+    def forward(self, x: Tensor) -> Tensor:
+        idx, ws = [], []
+        for lvl, res in enumerate(self.levels):
+            c, w = _bspline_corners(x, res) if self.interpolation == "bspline" else _cell_corners(x, res, smooth=True)
+            idx.append((c[..., 0] * res + c[..., 1]) * res + c[..., 2] + self.offsets[lvl])
+            ws.append(w)
+        feats = _gather_rows(self.table, torch.stack(idx, 1))  # (N, L, 8 or 27, C)
+        return (torch.stack(ws, 1)[..., None] * feats).sum(2).flatten(1)
+
+
+_PRIMES = (1, 2654435761, 805459861)
+
+
+class HashGrids(nn.Module):
+    """Multi-resolution hash encoding (Mueller et al. 2022).
+
+    Levels whose dense grid fits in the table are indexed densely (no collisions).
+    All levels and corners are gathered in one embedding call. Dense table gradients
+    with fused Adam measured ~4x faster on 2 CPU cores than sparse gradients with
+    SparseAdam (the sparse gradient's coalescing sort dominates).
+    First derivatives only (used for the material, which needs no normals).
+    """
+
+    def __init__(self, n_levels: int, min_res: int, max_res: int, table_log2: int, channels: int):
+        super().__init__()
+        growth = math.exp((math.log(max_res) - math.log(min_res)) / max(n_levels - 1, 1))
+        self.resolutions = [int(math.floor(min_res * growth ** i)) for i in range(n_levels)]
+        self.table_size = 1 << table_log2
+        sizes = [min(r ** 3, self.table_size) for r in self.resolutions]
+        offsets = [0]
+        for s in sizes:
+            offsets.append(offsets[-1] + s)
+        self.offsets = offsets
+        self.channels = channels
+        self.table = nn.Parameter(torch.empty(offsets[-1], channels).uniform_(-1e-4, 1e-4))
+
+    @property
+    def out_dim(self) -> int:
+        return len(self.resolutions) * self.channels
+
+    def forward(self, x: Tensor, n_levels: int | None = None) -> Tensor:
+        """(N, 3) in [-1, 1] -> (N, L * C) features of the first ``n_levels`` levels (all by default)."""
+        idx_all, w_all = [], []
+        for lvl, res in enumerate(self.resolutions[: n_levels or len(self.resolutions)]):
+            c, w = _cell_corners(x, res, smooth=False)
+            c = c.clamp(max=res - 1)
+            if res ** 3 <= self.table_size:
+                ii = (c[..., 0] * res + c[..., 1]) * res + c[..., 2]
+            else:
+                ii = ((c[..., 0] * _PRIMES[0]) ^ (c[..., 1] * _PRIMES[1]) ^ (c[..., 2] * _PRIMES[2])) % self.table_size
+            idx_all.append(ii + self.offsets[lvl])
+            w_all.append(w)
+        idx = torch.stack(idx_all, 1)  # (N, L, 8)
+        w = torch.stack(w_all, 1)  # (N, L, 8)
+        feats = _gather_rows(self.table, idx)  # (N, L, 8, C)
+        return (w[..., None] * feats).sum(2).flatten(1)
