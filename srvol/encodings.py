@@ -70,15 +70,18 @@ SDF_INTERPOLATIONS = ("smoothstep", "bspline")
 
 
 class DenseGrids(nn.Module):
-    """Multi-resolution dense feature grids over [-1, 1]^3 with smoothstep interpolation.
+    """Multi-resolution dense feature grids over [-1, 1]^3, smoothstep (8 nodes) or quadratic
+    B-spline (27 nodes) interpolation.
 
     All levels live in one table and are read with one gather (not grid_sample), so
     that second derivatives exist: the SDF's normal is an autograd gradient, and the
     eikonal and shading losses differentiate through it.
 
-    Smoothstep rather than trilinear, though only trilinear reproduces a plane exactly: on the stool
+    Smoothstep rather than trilinear, though trilinear reproduces a plane exactly: on the stool
     scene (flat seat, thin legs; 300 s, 1 thread, the thin-parts flags) trilinear grids gave 34.85 dB
-    HR PSNR and 13.8 deg normal MAE against 35.92 dB and 13.2 deg with smoothstep.
+    HR PSNR and 13.8 deg normal MAE against 35.92 dB and 13.2 deg with smoothstep. The B-spline has
+    both (C1 and exact on planes) at 3x the cost of a query: in 600 s stool gained 0.59 dB, shiny
+    lost 0.64 (half the steps; bench/results/suite_tuning.md), so smoothstep is the default.
     """
 
     def __init__(self, levels: tuple[int, ...], channels: int, init_std: float = 1e-4,
