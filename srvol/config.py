@@ -38,8 +38,9 @@ class TrainConfig:
     """gaussian: rays per LR pixel (Monte Carlo) / rays-per-pixel budget of a lattice step."""
     psf_sampler: str = "mc"
     """gaussian only: "mc" (the paper: psf_samples i.i.d. rays per pixel), "antithetic" (psf_samples
-    rays per pixel in rotated antithetic groups {g, -g, Jg, -Jg}) or "lattice" (shared, randomly
-    shifted lattice of rays over patch x patch LR pixels)."""
+    rays per pixel in rotated antithetic groups {g, -g, Jg, -Jg}), "lattice" (shared, randomly
+    shifted lattice of rays over patch x patch LR pixels) or "centre" (one ray at each pixel's centre,
+    psf_samples times the pixels: noSR's estimate, for stage 1 -- the PSF then enters in stage 2)."""
     psf_warmup: float = 0.0
     """gaussian per-pixel samplers (mc, antithetic) only: for this fraction of training (time or iterations) each LR pixel
     gets one ray at a Gaussian-distributed sub-pixel offset and a step takes psf_samples times as
@@ -155,6 +156,8 @@ def describe_psf_rays(cfg: TrainConfig, psf: GaussianPSF) -> str:
         if gaussian and sampler == "lattice":
             k, p = lattice_size(cfg.patch, cfg.lattice_cell, psf.sigma_lr_px), cfg.patch
             return f"shared {k}x{k} lattices over {p}x{p} LR pixels ({k * k / p ** 2:.1f} rays per LR pixel)"
+        if gaussian and sampler == "centre":
+            return f"one ray at each LR pixel's centre ({cfg.psf_samples}x the pixels)"
         text = f"{cfg.psf_samples} {'ray' if cfg.psf_samples == 1 else 'rays'} per LR pixel"
         if gaussian and sampler == "antithetic" and cfg.psf_samples > 1:
             text += " as an antithetic pair" if cfg.psf_samples == 2 else " in rotated antithetic groups"

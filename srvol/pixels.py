@@ -189,5 +189,7 @@ def sample_pixels(bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int
         rays_per_patch = psf.lattice_size(cfg.patch, cfg.lattice_cell) ** 2
         n = max(1, round(rays_per_step(cfg, stage) / rays_per_patch))
         return bank.sample_patches(n, cfg.patch, cfg.lattice_cell, psf, gen)
+    if psf.mode == SRMode.GAUSSIAN and sampler == "centre":
+        return bank.sample(rays_per_step(cfg, stage), True, PsfSampler(SRMode.NONE, psf.psf), 1, gen)
     ns = psf_rays_per_pixel(cfg, stage, progress)
     return bank.sample(rays_per_step(cfg, stage) // ns, True, psf, ns, gen, antithetic=sampler == "antithetic")

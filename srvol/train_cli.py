@@ -36,11 +36,13 @@ def add_parser(sub) -> None:
     p.add_argument("--psf-samples", type=int,
                    help="--sr gaussian: Monte Carlo rays per LR pixel (the paper's N_s) or the per-pixel ray "
                         "budget of a lattice step (default: by preset)")
-    p.add_argument("--psf-sampler", choices=("mc", "antithetic", "lattice"),
+    p.add_argument("--psf-sampler", choices=("mc", "antithetic", "lattice", "centre"),
                    help="--sr gaussian: 'mc' = N_s i.i.d. rays per LR pixel drawn from the PSF (paper, fast); "
                         "'antithetic' = the same Gaussian draws in rotated groups {g, -g, Jg, -Jg}, exact for "
                         "linear image variation; 'lattice' = one randomly shifted ray lattice shared by 4x4 LR "
-                        "pixels with Gaussian weights (default: auto antithetic, fast and paper mc; see README)")
+                        "pixels with Gaussian weights; 'centre' = one ray at each LR pixel's centre and N_s times "
+                        "the pixels (noSR's estimate, free of its noise; the PSF enters in stage 2) (default: "
+                        "auto antithetic, fast and paper mc; see README)")
     p.add_argument("--stage2-psf-sampler", choices=("mc", "antithetic", "lattice"),
                    help="--sr gaussian: the sampler of stage 2 (geometry frozen, BRDF refined); default: auto "
                         "lattice (low-noise Gaussian weights for the BRDF), otherwise the --psf-sampler of stage 1")
@@ -179,7 +181,9 @@ def build_config(scene, args):
                                                 f"pixels per step x {args.psf_samples} rays",)
     if args.psf_sampler is not None:
         changes["psf_sampler"] = args.psf_sampler
-        changes["stage2_psf_sampler"] = ""  # the asked sampler serves both stages unless stage 2's is asked too
+        # the asked sampler serves both stages unless stage 2's is asked too; "centre" serves stage 1 only
+        # (the PSF enters in stage 2: the preset's stage-2 sampler, else mc)
+        changes["stage2_psf_sampler"] = (cfg.stage2_psf_sampler or "mc") if args.psf_sampler == "centre" else ""
     if args.stage2_psf_sampler is not None:
         changes["stage2_psf_sampler"] = args.stage2_psf_sampler
     if args.stage2_fraction is not None:

@@ -110,3 +110,30 @@ def test_a_share_of_the_out_of_mask_rays_comes_from_around_the_silhouette(tmp_pa
     near = (ij[:, 1] >= 4) & (ij[:, 1] <= 11) & (ij[:, 0] >= 6) & (ij[:, 0] <= 13)
     assert near[:100].all()  # the first half: from the grown box
     assert 5 <= int(near[100:].sum()) <= 40  # the second: anywhere (48 / 304 of the background is near)
+
+
+def test_centre_sampler_gives_stage_1_the_pixel_centres_and_keeps_the_psf_for_stage_2(default_scene):
+    """--psf-sampler centre: stage 1 traces one ray through each LR pixel's centre and takes N_s times
+    the pixels (the same rays per step as N_s rays per pixel); stage 2 keeps the preset's PSF lattices."""
+    import argparse
+
+    from srvol.config import describe_psf_rays, psf_sampler_of_stage, rays_per_step
+    from srvol.pixels import sample_pixels
+    from srvol.presets import auto_config
+    from srvol.train_cli import add_parser, build_config
+
+    scene = load_scene(default_scene)
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--psf-sampler", "centre"]))
+    assert (psf_sampler_of_stage(cfg, 1), psf_sampler_of_stage(cfg, 2)) == ("centre", "lattice")
+    assert describe_psf_rays(cfg, scene.info.psf).startswith("one ray at each LR pixel's centre (2x the pixels)")
+    bank = PixelBank(scene, torch.device("cpu"))
+    psf = PsfSampler(SRMode.GAUSSIAN, scene.info.psf)
+    one = sample_pixels(bank, cfg, psf, 1, torch.Generator().manual_seed(0))
+    assert one.n_rays == len(one.target) == rays_per_step(cfg, 1) == 512  # auto's pairs: 256 pixels x 2 rays
+    uv = _landing(bank, scene, one.groups(0, 8), 1)
+    assert torch.allclose(uv - uv.floor(), torch.full_like(uv, 0.5), atol=1e-3)  # every ray through a centre
+    two = sample_pixels(bank, cfg, psf, 2, torch.Generator().manual_seed(0))
+    assert two.n_rays == sample_pixels(bank, auto_config(scene, "gaussian", 600.0), psf, 2,
+                                       torch.Generator().manual_seed(0)).n_rays  # stage 2 as auto's
