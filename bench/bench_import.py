@@ -129,8 +129,8 @@ def write_tables(rows: list[ImportRow]) -> None:
               "bench/work/capture_NAME`):", ""] + [f"- `{r.command}`" for r in rows]
     lines += ["", f"Machine: {os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, "
               f"load average at the end {load} (other jobs on the machine inflate the seconds). "
-              "SfM is multi-threaded and not deterministic: rotation errors vary by a few hundredths of a "
-              "degree from run to run. Reproduce: `OMP_NUM_THREADS=2 python -m bench.bench_import`."]
+              "SfM runs on one thread (srvol/capture/sfm.py SFM_THREADS), so the poses are the same on every "
+              "run. Reproduce: `OMP_NUM_THREADS=2 python -m bench.bench_import`."]
     write_result(RESULTS / "import_table.md", "\n".join(lines) + "\n")
     write_result(RESULTS / "import_table.json", json.dumps([asdict(r) for r in rows], indent=1) + "\n")
 
