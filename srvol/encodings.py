@@ -9,6 +9,7 @@ import torch
 import torch.nn as nn
 from torch import Tensor
 
+
 def positional_encoding(x: Tensor, n_freqs: int) -> Tensor:
     """[x, sin(2^k pi x), cos(2^k pi x)] for k < n_freqs: (N, 3) -> (N, 3 + 6 n_freqs)."""
     if n_freqs == 0:
@@ -27,13 +28,24 @@ def _gather_rows(table: Tensor, idx: Tensor) -> Tensor:
 _CORNERS = torch.tensor([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])  # (8, 3)
 
 
+def _grid_coords(x: Tensor, res: int) -> Tensor:
+    """Continuous coordinates (N, 3) in [0, res - 1) of points of [-1, 1]^3 on a res^3 grid (nodes at the ends)."""
+    return ((x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (res - 1)).clamp(0.0, res - 1 - 1e-4)
+
+
+def _node_weights(fx: Tensor, k: Tensor) -> Tensor:
+    """(N, K) weights of K nodes from per-axis factors fx (N, 3, M): node j's weight is the product
+    of fx[:, a, k[j, a]] over the three axes (k: (K, 3) indices into the M factors)."""
+    return fx[:, 0, k[:, 0]] * fx[:, 1, k[:, 1]] * fx[:, 2, k[:, 2]]
+
+
 def _cell_corners(x: Tensor, res: int, smooth: bool) -> tuple[Tensor, Tensor]:
     """Integer corner coordinates (N, 8, 3) of the cell around each point of a res^3 grid over
     [-1, 1]^3 (grid points at the ends), and the interpolation weights (N, 8).
 
     ``smooth``: smoothstep weights (C1 across cells: continuous normals) instead of trilinear.
     """
-    u = ((x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (res - 1)).clamp(0.0, res - 1 - 1e-4)
+    u = _grid_coords(x, res)
     # a NaN point (a diverged step) reads corner 0 with NaN weights: the loss turns NaN and training
     # rolls back, instead of indexing out of the table
     i0 = torch.nan_to_num(u.detach().floor(), nan=0.0)
@@ -42,10 +54,8 @@ def _cell_corners(x: Tensor, res: int, smooth: bool) -> tuple[Tensor, Tensor]:
         f = f * f * (3.0 - 2.0 * f)
     corners = _CORNERS.to(x.device)
     c = i0.long()[:, None, :] + corners[None]  # (N, 8, 3)
-    # per-axis factors (N, 3, 2) = [1 - f, f]; a corner's weight is the product of its three
-    fx = torch.stack([1.0 - f, f], dim=-1)
-    w = fx[:, 0, corners[:, 0]] * fx[:, 1, corners[:, 1]] * fx[:, 2, corners[:, 2]]
-    return c, w
+    # per-axis factors (N, 3, 2) = [1 - f, f]
+    return c, _node_weights(torch.stack([1.0 - f, f], dim=-1), corners)
 
 
 _CORNERS27 = torch.tensor([[a, b, c] for a in range(3) for b in range(3) for c in range(3)]) - 1  # (27, 3)
@@ -55,15 +65,13 @@ def _bspline_corners(x: Tensor, res: int) -> tuple[Tensor, Tensor]:
     """The 27 grid nodes (N, 27, 3) around each point of a res^3 grid over [-1, 1]^3 and their
     uniform quadratic B-spline weights (N, 27): C1 across cells (continuous normals) and, unlike
     smoothstep, exact on linear functions (a tilted plane's gradient is constant, not terraced)."""
-    u = ((x.clamp(-1.0, 1.0) + 1.0) * 0.5 * (res - 1)).clamp(0.0, res - 1 - 1e-4)
-    j0 = torch.nan_to_num((u.detach() + 0.5).floor(), nan=0.0)
+    u = _grid_coords(x, res)
+    j0 = torch.nan_to_num((u.detach() + 0.5).floor(), nan=0.0)  # the nearest node (NaN: as in _cell_corners)
     t = u - j0 + 0.5
     fx = torch.stack([0.5 * (1.0 - t) ** 2, 0.75 - (t - 0.5) ** 2, 0.5 * t * t], dim=-1)  # (N, 3, 3)
     corners = _CORNERS27.to(x.device)
     c = (j0.long()[:, None, :] + corners[None]).clamp(0, res - 1)  # (N, 27, 3)
-    k = corners + 1
-    w = fx[:, 0, k[:, 0]] * fx[:, 1, k[:, 1]] * fx[:, 2, k[:, 2]]
-    return c, w
+    return c, _node_weights(fx, corners + 1)
 
 
 SDF_INTERPOLATIONS = ("smoothstep", "bspline")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +24,7 @@ from srvol.capture.frame import (ObjectSphere, Similarity, normalization, object
                                  object_sphere_from_points, up_direction)
 from srvol.capture.photos import PhotoInfo, list_photos, notice, read_photo_srgb
 from srvol.capture.resolution import WorkingResolution, choose_resolution, scale_intrinsics, to_working
-from srvol.capture.sfm import Registration, default_threads, run_sfm, write_sfm_image
+from srvol.capture.sfm import SFM_THREADS, Registration, run_sfm, write_sfm_image
 from srvol.data import SceneInfo, View, write_scene_folder
 from srvol.errors import SrvolError
 from srvol.images import srgb_to_linear
@@ -44,7 +44,7 @@ class ImportOptions:
     colmap: Path | None = None
     transforms: Path | None = None
     masks: Path | None = None
-    threads: int = field(default_factory=default_threads)
+    threads: int = SFM_THREADS
     force: bool = False
     progress: bool = True
 

@@ -192,7 +192,3 @@ def registration_from_reconstruction(rec, names: list[str], sizes: dict[str, tup
     unreg = tuple(n for n in names if n not in cams)
     return Registration(cameras={n: cams[n] for n in names if n in cams}, points=pts, unregistered=unreg,
                         source=source)
-
-
-def default_threads() -> int:
-    return SFM_THREADS
