@@ -42,7 +42,7 @@ SR_VARIANTS = {
 """Training variants by name: the PSF model and how its integral is estimated."""
 
 DEFAULT_VARIANTS = ("auto:gaussian", "auto:none", "auto:box", "paper:gaussian")
-"""auto's gaussian (an antithetic pair per pixel, stage-2 lattices) beside noSR, Vol-SR's box and the
+"""auto's gaussian (pixel-centre rays in stage 1, the PSF's lattices in stage 2) beside noSR, Vol-SR's box and the
 paper preset. Measured in earlier sessions and kept out of the default set: gaussian-mc (i.i.d.
 rays: -0.8 dB vs antithetic), gaussian-warmup (no gain), gaussian-lattice (lattices in stage 1:
 slightly behind i.i.d.), gaussian-antithetic (antithetic rays in stage 2 too: -0.3 dB)."""
@@ -245,7 +245,7 @@ def write_results(rows: list[dict], args) -> None:
                       f"{auto['iterations']} iterations ({paper['iterations'] / auto['iterations']:.3f}x); train PSNR "
                       f"on training pixels {paper['train_psnr_lr_last']:.2f} vs {train_psnr_at_end(auto_run):.2f} dB."]
     lines += ["", "`sr` names the training variant (`bench/bench_train.py: SR_VARIANTS`): `gaussian` is the preset's own "
-              "PSF sampler (auto: an antithetic pair of rays per LR pixel in stage 1, shared ray lattices with Gaussian "
+              "PSF sampler (auto: one ray at each LR pixel's centre in stage 1, shared ray lattices with Gaussian "
               "weights in stage 2; paper: 25 i.i.d.), `gaussian-antithetic` antithetic rays in both stages, "
               "`gaussian-s2-0.15` / `none-s2-0.15` auto with 15% of the budget in stage 2 (auto: 30%), "
               "`gaussian-mc` the paper's i.i.d. sampler at auto's size, `gaussian-warmup` i.i.d. with `--psf-warmup 0.5`."]

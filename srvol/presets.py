@@ -102,14 +102,17 @@ SDF_CELL_HR_PX = 12
 which breaks up glossy highlights (tuning scene shiny, 600 s: 6 HR px 30.40 dB, 12 HR px with the smaller
 heads and table below 32.62 dB)."""
 
-MAT_CELL_DETAILS = 2.0
+MAT_CELL_DETAILS = 1.0
 """auto: the finest material cell spans up to this many recoverable details (:func:`recoverable_cell_hr_px`,
-a half-period each): one shortest period the PSF passes. The finest level is the smallest power of two
-(in 32..1024) whose cell 2 / level is no wider than that."""
+a half-period each): half the shortest period the PSF passes, the detail SR recovers. The finest level
+is the smallest power of two (in 32..1024) whose cell 2 / level is no wider than that. Two details per
+cell (a level half as fine, in a 2^14 table) left SR nothing to recover into: noSR beat it on five of
+seven suite scenes (suite_tuning.md)."""
 
 AUTO_HEAD_WIDTH = 32
-AUTO_TABLE_LOG2 = 14
-"""auto: hidden width of the SDF and material heads, and the material hash table (2^14 entries x 2)."""
+AUTO_TABLE_LOG2 = 17
+"""auto: hidden width of the SDF and material heads, and the material hash table (2^17 entries x 2 per
+level: the finest levels of a one-detail material grid fit with few collisions)."""
 
 
 def _pow2_at_least(x: float, lo: float, hi: float) -> int:
@@ -142,7 +145,7 @@ def auto_batches(psf_samples: int) -> AutoBatches:
 def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0) -> TrainConfig:
     """Capacity derived from the scene: resolution from the HR pixel footprint, the stage-2
     lattice spacing from the PSF width, the beta cap from the footprint, thin-parts sampling from
-    the masks; one antithetic pair of PSF rays per pixel (:func:`auto_batches`: pixels per step).
+    the masks; pixel-centre rays in stage 1 and the PSF lattices in stage 2 (:func:`auto_batches`: pixels per step).
     Reasons are printed and saved.
 
     ``capacity`` scales the derived model (grid resolutions, hash table, head widths) for
@@ -157,33 +160,33 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     fine = _multiple_of_4(2.0 / (SDF_CELL_HR_PX * hr) * capacity, 16 * capacity, 64 * capacity)
     table_log2 = max(10, AUTO_TABLE_LOG2 + int(round(3 * math.log2(capacity))))
     hidden = max(8, int(round(AUTO_HEAD_WIDTH * capacity)))
-    reasons.append(f"model sized for what {hr:.4f}-unit pixels can supervise in minutes: SDF cell ~{SDF_CELL_HR_PX} HR "
-                   f"pixels, {AUTO_HEAD_WIDTH}-wide heads, a 2^{AUTO_TABLE_LOG2} hash table -- on the tuning set (600 s) "
-                   "twice this (SDF cell 6 HR px, 64-wide heads, 2^17) fitted grain into the surface: shiny 30.40 dB "
-                   "HR PSNR, 5.1 deg vs 32.62, 3.8 deg here; bumpy 37.09 vs 36.78; stool 40.21 vs 39.60 (mean +0.43 dB "
-                   "for the smaller model; suite_tuning.md)")
+    reasons.append(f"geometry sized for what {hr:.4f}-unit pixels can supervise in minutes: SDF cell "
+                   f"~{SDF_CELL_HR_PX} HR pixels, {AUTO_HEAD_WIDTH}-wide heads -- on the tuning set (600 s) twice "
+                   "this (SDF cell 6 HR px, 64-wide heads) fitted grain into the surface: shiny 30.40 dB HR PSNR, "
+                   "5.1 deg vs 32.62, 3.8 deg; bumpy 37.09 vs 36.78; stool 40.21 vs 39.60 (suite_tuning.md)")
     if capacity != 1.0:
         reasons.append(f"capacity x{capacity:g} of what the scene needs (study setting)")
-    reasons.append(f"material hash grid finest level {mat_max} (cell {2 / mat_max:.4f}; the PSF leaves detail "
-                   f"down to {detail_px:.1f} HR pixels of {hr:.4f})")
+    reasons.append(f"material hash grid finest level {mat_max}, 2^{table_log2} entries per level (cell "
+                   f"{2 / mat_max:.4f}: one recoverable detail, {detail_px:.1f} HR pixels of {hr:.4f} at this PSF) -- "
+                   f"half as fine in a 2^{table_log2 - 3} table left SR nothing to recover into (suite_tuning.md)")
     levels = (max(4, fine // 4), max(4, fine // 2), fine)
     reasons.append(f"SDF grids {levels} (finest cell {2 / fine:.4f} ~ {2 / fine / hr:.0f} HR pixels)")
     mode = SRMode(sr)
     sigma = scene.info.psf_sigma_lr_px
     cell = 0.5
     if mode == SRMode.GAUSSIAN:
-        # The Monte Carlo PSF estimate is unbiased for any count, so the count trades the noise of
-        # each pixel's estimate against pixels per step (the geometry learns from many, varied
-        # pixels). One antithetic pair {g, -g} per pixel whatever the PSF's width: at 512 rays per step,
-        # 256 pixels x 2 rays beat 128 x 4 and 512 x 1 on the default scene (sigma 0.375, 600 s: 39.80 dB
-        # HR PSNR vs 39.45 and 38.63) and 256 x 2 beat 85 x 6 on the tuning scene stool (sigma 0.6,
-        # 600 s: 40.21 dB, 8.1 deg vs 38.52 dB, 11.0 deg).
+        # Stage 1 fits the geometry from pixel-centre rays: a PSF estimate's noise (even an antithetic
+        # pair's) costs the surface more than the blur it models buys there; the PSF's detail is
+        # recovered in stage 2, where the frozen geometry lets low-noise shared lattices carry it.
+        # ns = 2 keeps the rays per step of the 2-ray estimate (auto_batches), for --psf-samples too.
         ns = 2
-        reasons.append(f"PSF samples {ns} per LR pixel and step (sigma {sigma} LR px): one antithetic pair for any "
-                       "PSF width -- pixels per step count more than rays per pixel (tuning scene stool, sigma 0.6, "
-                       "600 s: 256 pixels x 2 rays 40.21 dB, 8.1 deg vs 85 x 6 38.52 dB, 11.0 deg)")
-        reasons.append("PSF rays in antithetic pairs {g, -g} (rotated groups {g, -g, Jg, -Jg} from 4 rays): each "
-                       "still drawn from the Gaussian, the group's error is zero where the image varies linearly")
+        reasons.append(f"stage 1 (geometry): one ray at each LR pixel's centre, {ns}x the pixels of a {ns}-ray PSF "
+                       f"estimate at the same rays per step (sigma {sigma} LR px) -- the geometry learns from more, "
+                       "varied pixels and no PSF noise; the PSF enters in stage 2, which recovers the detail "
+                       "(tuning set, 600 s, with the finer material grid above: shiny 32.85 dB, bumpy 39.06, "
+                       "stool 41.17 vs 32.01, 37.76, 40.46 with an antithetic PSF pair per pixel and half the "
+                       "material detail; "
+                       "suite_tuning.md; --psf-samples N asks for N PSF rays per pixel in stage 1 instead)")
         reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
                        "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run, 32 + 12 samples "
                        "per ray: +0.10 dB HR PSNR vs -1.44 dB with antithetic pairs, -1.95 dB with 2 i.i.d. rays -- "
@@ -211,12 +214,13 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    "train_table.md)")
     cfg = TrainConfig(preset="auto", fields=fields, sampler=stage1, stage2_sampler=stage2,
                       stage2_fraction=AUTO_STAGE2_FRACTION, sr=sr, psf_samples=ns,
-                      psf_sampler="antithetic" if mode == SRMode.GAUSSIAN else "mc",
+                      psf_sampler="centre" if mode == SRMode.GAUSSIAN else "mc",
                       stage2_psf_sampler="lattice" if mode == SRMode.GAUSSIAN else "", patch=4, lattice_cell=cell,
                       **batches._asdict(),
                       time_budget=time_budget)
-    reasons.append(f"{n_in} in-mask training pixels; {batches.batch_in} per step x {ns} rays "
-                   f"(stage 2: {rays_per_step(cfg, 2)} rays per step)")
+    per_step = (f"{batches.batch_in * ns} per stage-1 step, one centre ray each" if mode == SRMode.GAUSSIAN
+                else f"{batches.batch_in} per step x {ns} rays")
+    reasons.append(f"{n_in} in-mask training pixels; {per_step} (stage 2: {rays_per_step(cfg, 2)} rays per step)")
     if read_normalization(scene.root) is not None:  # imported by srvol import
         cfg = replace(cfg, capture=AUTO_CAPTURE_TERMS)
         reasons.append(f"real-capture terms on ({AUTO_CAPTURE_TERMS.describe()}): an imported scene; ambient, pose "

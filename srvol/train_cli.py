@@ -36,14 +36,15 @@ def add_parser(sub) -> None:
                    help="PSF model: gaussian (SuperRVol), box (Vol-SR, d x d HR grid), none (one ray per pixel)")
     p.add_argument("--psf-samples", type=int,
                    help="--sr gaussian: Monte Carlo rays per LR pixel (the paper's N_s) or the per-pixel ray "
-                        "budget of a lattice step (default: by preset)")
+                        "budget of a lattice step (default: by preset; on auto it also turns stage 1's "
+                        "pixel-centre rays into N_s PSF rays per pixel)")
     p.add_argument("--psf-sampler", choices=("mc", "antithetic", "lattice", "centre"),
                    help="--sr gaussian: 'mc' = N_s i.i.d. rays per LR pixel drawn from the PSF (paper, fast); "
                         "'antithetic' = the same Gaussian draws in rotated groups {g, -g, Jg, -Jg}, exact for "
                         "linear image variation; 'lattice' = one randomly shifted ray lattice shared by 4x4 LR "
                         "pixels with Gaussian weights; 'centre' = one ray at each LR pixel's centre and N_s times "
                         "the pixels (noSR's estimate, free of its noise; the PSF enters in stage 2) (default: "
-                        "auto antithetic, fast and paper mc; see README)")
+                        "auto centre, or antithetic with --psf-samples; fast and paper mc; see README)")
     p.add_argument("--stage2-psf-sampler", choices=("mc", "antithetic", "lattice"),
                    help="--sr gaussian: the sampler of stage 2 (geometry frozen, BRDF refined); default: auto "
                         "lattice (low-noise Gaussian weights for the BRDF), otherwise the --psf-sampler of stage 1")
@@ -177,6 +178,8 @@ def build_config(scene, args):
             batches = auto_batches(args.psf_samples)
             batch_in = batches.batch_in
             changes.update(batches._asdict())
+            if cfg.psf_sampler == "centre":  # N PSF rays per pixel asked for stage 1 too
+                changes["psf_sampler"] = "antithetic"
         if args.sr == "gaussian":
             changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {batch_in} in-mask "
                                                 f"pixels per step x {args.psf_samples} rays",)

@@ -207,7 +207,7 @@ def test_auto_capacity_scales_the_scene_derived_model(default_scene):
     for c in (0.5, 1.0, 2.0):
         cfg = auto_config(scene, "gaussian", 60.0, capacity=c)
         sizes[c] = sum(p.numel() for p in SceneFields(cfg.fields, learn_intensity=False).parameters())
-        assert cfg.psf_sampler == "antithetic"
+        assert cfg.psf_sampler == "centre"
         assert (c != 1.0) == any("capacity x" in r for r in cfg.reasons)
     assert sizes[0.5] < sizes[1.0] < sizes[2.0]
 
@@ -216,8 +216,9 @@ def test_auto_sizes_the_sdf_grids_by_the_pixel_footprint(default_scene):
     """The finest SDF cell is ~12 HR pixels: at a footprint of 0.0152 scene units (the default scene
     at LR 40x30) that is 2 / (12 x 0.0152) = 11 cells, clamped up to 16 -- three levels 4/8/16; the
     full-size default scene (footprint 0.0051) gets 2 / 0.061 = 33 -> 32, i.e. 8/16/32. The material's
-    finest level is the power of two whose cell spans at most two recoverable details (2 x 2.2 HR px at
-    sigma 1.5: one shortest period the PSF passes)."""
+    finest level is the power of two whose cell spans at most one recoverable detail (2.2 HR px at
+    sigma 1.5: half the shortest period the PSF passes): 2 / (2.2 x 0.0152) = 60 -> 64 here, 180 -> 256
+    at full size."""
     from srvol.config import hr_pixel_size
     from srvol.presets import _multiple_of_4, _pow2_at_least
 
@@ -226,10 +227,10 @@ def test_auto_sizes_the_sdf_grids_by_the_pixel_footprint(default_scene):
     cfg = auto_config(scene, "gaussian", 60.0)
     assert abs(hr - 0.0152) < 0.0005
     assert cfg.fields.sdf_levels == (4, 8, 16)
-    assert cfg.fields.sdf_hidden == cfg.fields.mat_hidden == 32 and cfg.fields.mat_table_log2 == 14
+    assert cfg.fields.sdf_hidden == cfg.fields.mat_hidden == 32 and cfg.fields.mat_table_log2 == 17
     assert _multiple_of_4(2.0 / (12 * 0.00505), 16, 64) == 32
-    assert _pow2_at_least(1.0 / (2.196 * 0.00505), 32, 1024) == 128
-    assert _pow2_at_least(1.0 / (2.196 * hr), 32, 1024) == cfg.fields.mat_max_res == 32
+    assert _pow2_at_least(2.0 / (2.196 * 0.00505), 32, 1024) == 256
+    assert _pow2_at_least(2.0 / (2.196 * hr), 32, 1024) == cfg.fields.mat_max_res == 64
     assert any("SDF cell ~12 HR pixels" in r for r in cfg.reasons)
 
 
@@ -238,7 +239,8 @@ def test_psf_warmup_trades_rays_per_pixel_for_pixels_at_equal_rays(default_scene
     4x the pixels; then 4 rays per pixel. Stage 2 and the other SR modes never warm up; the rays per
     step stay the same."""
     scene = load_scene(default_scene)
-    cfg = replace(auto_config(scene, "gaussian", 60.0), psf_warmup=0.5, psf_samples=4, batch_in=128)
+    cfg = replace(auto_config(scene, "gaussian", 60.0), psf_sampler="antithetic", psf_warmup=0.5, psf_samples=4,
+                  batch_in=128)
     assert cfg.psf_samples == 4
     assert [psf_rays_per_pixel(cfg, 1, p) for p in (0.0, 0.49, 0.5, 0.9)] == [1, 1, 4, 4]
     assert psf_rays_per_pixel(cfg, 2, 0.1) == 4
@@ -272,8 +274,8 @@ def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
 
 
 def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
-    """auto derives N_s = 2 (an antithetic pair) for any PSF; --psf-samples 4 keeps auto's sampler and
-    its rays per step (half the pixels, each with 4 rays), and the printed reasons say what was asked."""
+    """auto derives N_s = 2 for any PSF; --psf-samples 4 turns stage 1 into antithetic groups of 4 rays
+    and keeps auto's rays per step (half the pixels, each with 4 rays), and the printed reasons say what was asked."""
     import argparse
 
     from srvol.train_cli import add_parser, build_config
@@ -293,22 +295,22 @@ def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
 
 
 def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_scene):
-    """auto --sr gaussian: stage 1 estimates each pixel from its own antithetic pair of rays (varied pixels
-    for the geometry); stage 2 (geometry frozen) from shared lattices with Gaussian weights, at the
-    same rays per step as noSR's stage 2. --psf-sampler alone sets both stages; --stage2-psf-sampler
-    sets stage 2."""
+    """auto --sr gaussian: stage 1 traces one ray at each pixel's centre, twice the pixels of a 2-ray
+    estimate (varied pixels for the geometry, no PSF noise); stage 2 (geometry frozen) estimates the
+    PSF from shared lattices with Gaussian weights, at the same rays per step as noSR's stage 2.
+    --psf-sampler alone sets both stages; --stage2-psf-sampler sets stage 2."""
     import argparse
 
     from srvol.train_cli import add_parser, build_config
 
     scene = load_scene(default_scene)
     cfg = auto_config(scene, "gaussian", 60.0)
-    assert (psf_sampler_of_stage(cfg, 1), psf_sampler_of_stage(cfg, 2)) == ("antithetic", "lattice")
+    assert (psf_sampler_of_stage(cfg, 1), psf_sampler_of_stage(cfg, 2)) == ("centre", "lattice")
     bank = PixelBank(scene, torch.device("cpu"))
     psf = PsfSampler(SRMode.GAUSSIAN, scene.info.psf)
     one = sample_pixels(bank, cfg, psf, 1, torch.Generator().manual_seed(0))
     two = sample_pixels(bank, cfg, psf, 2, torch.Generator().manual_seed(0))
-    assert one.n_rays == 2 * len(one.target) == 2 * 256  # an antithetic pair of its own per pixel
+    assert one.n_rays == len(one.target) == 2 * 256  # one centre ray per pixel, twice the pixels
     k = lattice_size(cfg.patch, cfg.lattice_cell, psf.psf.sigma_lr_px)  # one k x k lattice serves 4x4 neighbouring pixels
     assert two.n_rays == len(two.target) // cfg.patch ** 2 * k * k
     none = auto_config(scene, "none", 60.0)
