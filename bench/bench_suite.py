@@ -96,16 +96,19 @@ def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
 
 
 def run_rules(run: Path) -> str:
-    """The beta cap, refining samples, PSF rays and head width a run trained with (config.json), in
-    words: runs of an older auto (beta free, no refining samples, 64-wide heads) and today's are told
-    apart in the table."""
+    """The beta cap, refining samples, stage-1 rays, head width and material table a run trained with
+    (config.json), in words: runs of an older auto (beta free, no refining samples, 64-wide heads, PSF
+    pairs in stage 1 with a 2^14 material table) and today's are told apart in the table."""
     from srvol.config import read_run_config
 
     cfg = read_run_config(run).train
     cap = f"beta cap {cfg.beta_cap_end:.4f}" if cfg.beta_anneal else "beta free"
-    rays = f", {cfg.psf_samples} PSF rays" if cfg.sr == "gaussian" else ""
+    rays = ""
+    if cfg.sr == "gaussian":
+        rays = ", stage 1 centre rays" if cfg.psf_sampler == "centre" else f", {cfg.psf_samples} PSF rays"
     heads = f", heads {cfg.fields.sdf_hidden}" if cfg.fields.kind == "grid" else ""
-    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads
+    table = f", material 2^{cfg.fields.mat_table_log2}" if cfg.fields.kind == "grid" else ""
+    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table
 
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:
@@ -238,9 +241,10 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "HR metrics are means over each scene's held-out test views. bicubic: each test view's own LR image "
              "upsampled bicubically (a 2D reference that sees the test view, which no 3D method is given). Set "
              "means are over the scenes with every column. `rules` (every run): the beta cap, refining samples, "
-             "PSF rays per pixel and head width the run trained with -- `beta free` marks a run of auto before the "
-             "cap and the thin-parts rule (`srvol/presets.py`), a rule without `heads 32` a run of the twice larger "
-             "model auto derived before, `(earlier run)` a row carried over from the table before "
+             "stage-1 rays, head width and material hash table the run trained with -- `beta free` marks a run of "
+             "auto before the cap and the thin-parts rule (`srvol/presets.py`), a rule without `heads 32` a run of "
+             "the twice larger model auto derived before, `2 PSF rays` with `material 2^14` a run of the auto "
+             "before stage 1's centre rays and the finer material grid, `(earlier run)` a row carried over from the table before "
              "(its run folder was not on the machine that collected this one). Reproduce: `srvol bench suite "
              + command + "` (resumable; each run's commands below).", "",
              *summary_lines(rows, columns), "", "## Every run", "", *detail_lines(rows), "", "Commands:", ""]
