@@ -244,8 +244,8 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "stage-1 rays, head width and material hash table the run trained with -- `beta free` marks a run of "
              "auto before the cap and the thin-parts rule (`srvol/presets.py`), a rule without `heads 32` a run of "
              "the twice larger model auto derived before, `2 PSF rays` with `material 2^14` a run of the auto "
-             "before stage 1's centre rays and the finer material grid, `(earlier run)` a row carried over from the table before "
-             "(its run folder was not on the machine that collected this one). Reproduce: `srvol bench suite "
+             "before stage 1's centre rays and the finer material grid, `(earlier run)` a row carried over from "
+             "the table before (its run folder was not on the machine that collected this one). Reproduce: `srvol bench suite "
              + command + "` (resumable; each run's commands below).", "",
              *summary_lines(rows, columns), "", "## Every run", "", *detail_lines(rows), "", "Commands:", ""]
     lines += [f"- {r['scene']} {VARIANTS[sr]}: `{v['command']}`" for r in rows for sr, v in r["variants"].items()]

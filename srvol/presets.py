@@ -145,7 +145,8 @@ def auto_batches(psf_samples: int) -> AutoBatches:
 def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0) -> TrainConfig:
     """Capacity derived from the scene: resolution from the HR pixel footprint, the stage-2
     lattice spacing from the PSF width, the beta cap from the footprint, thin-parts sampling from
-    the masks; pixel-centre rays in stage 1 and the PSF lattices in stage 2 (:func:`auto_batches`: pixels per step).
+    the masks; pixel-centre rays in stage 1 and the PSF lattices in stage 2 (:func:`auto_batches`:
+    pixels per step).
     Reasons are printed and saved.
 
     ``capacity`` scales the derived model (grid resolutions, hash table, head widths) for
@@ -185,8 +186,8 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                        "varied pixels and no PSF noise; the PSF enters in stage 2, which recovers the detail "
                        "(tuning set, 600 s, with the finer material grid above: shiny 32.85 dB, bumpy 39.06, "
                        "stool 41.17 vs 32.01, 37.76, 40.46 with an antithetic PSF pair per pixel and half the "
-                       "material detail; "
-                       "suite_tuning.md; --psf-samples N asks for N PSF rays per pixel in stage 1 instead)")
+                       "material detail; suite_tuning.md; --psf-samples N asks for N PSF rays per pixel in stage 1 "
+                       "instead)")
         reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
                        "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run, 32 + 12 samples "
                        "per ray: +0.10 dB HR PSNR vs -1.44 dB with antithetic pairs, -1.95 dB with 2 i.i.d. rays -- "
@@ -218,7 +219,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                       stage2_psf_sampler="lattice" if mode == SRMode.GAUSSIAN else "", patch=4, lattice_cell=cell,
                       **batches._asdict(),
                       time_budget=time_budget)
-    per_step = (f"{batches.batch_in * ns} per stage-1 step, one centre ray each" if mode == SRMode.GAUSSIAN
+    per_step = (f"{rays_per_step(cfg, 1)} per stage-1 step, one centre ray each" if cfg.psf_sampler == "centre"
                 else f"{batches.batch_in} per step x {ns} rays")
     reasons.append(f"{n_in} in-mask training pixels; {per_step} (stage 2: {rays_per_step(cfg, 2)} rays per step)")
     if read_normalization(scene.root) is not None:  # imported by srvol import

@@ -275,7 +275,8 @@ def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
 
 def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
     """auto derives N_s = 2 for any PSF; --psf-samples 4 turns stage 1 into antithetic groups of 4 rays
-    and keeps auto's rays per step (half the pixels, each with 4 rays), and the printed reasons say what was asked."""
+    and keeps auto's rays per step (half the pixels, each with 4 rays), and the printed reasons say what
+    was asked."""
     import argparse
 
     from srvol.train_cli import add_parser, build_config
