@@ -108,7 +108,8 @@ def run_rules(run: Path) -> str:
         rays = ", stage 1 centre rays" if cfg.psf_sampler == "centre" else f", {cfg.psf_samples} PSF rays"
     heads = f", heads {cfg.fields.sdf_hidden}" if cfg.fields.kind == "grid" else ""
     table = f", material 2^{cfg.fields.mat_table_log2}" if cfg.fields.kind == "grid" else ""
-    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table
+    c2f = f", coarse-to-fine {cfg.coarse_to_fine:g}" if cfg.coarse_to_fine else ""
+    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f
 
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:

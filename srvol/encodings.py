@@ -104,6 +104,7 @@ class DenseGrids(nn.Module):
             self.offsets.append(self.offsets[-1] + r ** 3)
         self.channels = channels
         self.table = nn.Parameter(torch.randn(self.offsets[-1], channels) * init_std)
+        self.register_buffer("level_weights", torch.ones(len(self.levels)), persistent=False)
 
     @property
     def out_dim(self) -> int:
@@ -116,7 +117,8 @@ class DenseGrids(nn.Module):
             idx.append((c[..., 0] * res + c[..., 1]) * res + c[..., 2] + self.offsets[lvl])
             ws.append(w)
         feats = _gather_rows(self.table, torch.stack(idx, 1))  # (N, L, 8 or 27, C)
-        return (torch.stack(ws, 1)[..., None] * feats).sum(2).flatten(1)
+        w = torch.stack(ws, 1) * self.level_weights[:, None]
+        return (w[..., None] * feats).sum(2).flatten(1)
 
 
 _PRIMES = (1, 2654435761, 805459861)
@@ -144,6 +146,7 @@ class HashGrids(nn.Module):
         self.offsets = offsets
         self.channels = channels
         self.table = nn.Parameter(torch.empty(offsets[-1], channels).uniform_(-1e-4, 1e-4))
+        self.register_buffer("level_weights", torch.ones(n_levels), persistent=False)
 
     @property
     def out_dim(self) -> int:
@@ -162,6 +165,15 @@ class HashGrids(nn.Module):
             idx_all.append(ii + self.offsets[lvl])
             w_all.append(w)
         idx = torch.stack(idx_all, 1)  # (N, L, 8)
-        w = torch.stack(w_all, 1)  # (N, L, 8)
+        w = torch.stack(w_all, 1) * self.level_weights[: idx.shape[1], None]  # (N, L, 8)
         feats = _gather_rows(self.table, idx)  # (N, L, 8, C)
         return (w[..., None] * feats).sum(2).flatten(1)
+
+
+def level_window(n_levels: int, always_on: int, share: float) -> Tensor:
+    """Weights (n_levels,) of a coarse-to-fine schedule at ``share`` in [0, 1] of its span: the
+    first ``always_on`` levels are on from the start, the rest come in one after another, each
+    fading from 0 to 1 over its turn (Neuralangelo's progressive levels, made continuous)."""
+    fixed = min(max(always_on, 0), n_levels)
+    active = fixed + min(max(share, 0.0), 1.0) * (n_levels - fixed)
+    return (active - torch.arange(n_levels, dtype=torch.float32)).clamp(0.0, 1.0)

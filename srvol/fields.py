@@ -24,7 +24,7 @@ import torch
 import torch.nn as nn
 from torch import Tensor
 
-from srvol.encodings import DenseGrids, HashGrids, positional_encoding
+from srvol.encodings import DenseGrids, HashGrids, level_window, positional_encoding
 from srvol.types import ALPHA_MIN, SurfaceMaterial
 
 BETA_FLOOR = 1e-4
@@ -161,6 +161,17 @@ class SceneFields(nn.Module):
             d = self.sdf_net(x)
             (g,) = torch.autograd.grad(d, x, torch.ones_like(d), create_graph=create_graph)
         return d, g
+
+    @torch.no_grad()
+    def set_coarse_to_fine(self, share: float) -> None:
+        """Open the grids' levels up to ``share`` in [0, 1] of a coarse-to-fine schedule (1: all).
+        The material keeps the specular head's coarse levels and the SDF its coarsest grid from the
+        start; the finer levels fade in one after another. The MLP fields have no levels."""
+        if self.cfg.kind != "grid":
+            return
+        mat, sdf = self.mat_grid.level_weights, self.sdf_net.grids.level_weights
+        mat.copy_(level_window(len(mat), self.cfg.spec_levels, share))
+        sdf.copy_(level_window(len(sdf), 1, share))
 
     # -- material
     def material(self, x: Tensor) -> SurfaceMaterial:

@@ -76,3 +76,32 @@ def test_sdf_interpolation_flag_reaches_the_fields_and_the_saved_config(default_
     assert TrainConfig.from_json(cfg.to_json()) == cfg
     with pytest.raises(SrvolError, match="--sdf-interpolation"):
         build_config(scene, ap.parse_args(args + ["--sdf-interpolation", "bspline", "--preset", "paper"]))
+
+
+def test_coarse_to_fine_opens_the_finer_levels_one_after_another():
+    from srvol.encodings import level_window
+
+    # 10 material levels, the 4 the specular head reads on from the start: halfway, 3 of 6 more are in
+    assert level_window(10, 4, 0.0).tolist() == [1, 1, 1, 1, 0, 0, 0, 0, 0, 0]
+    assert level_window(10, 4, 0.5).tolist() == [1, 1, 1, 1, 1, 1, 1, 0, 0, 0]
+    assert level_window(10, 4, 0.25).tolist()[4:6] == [1.0, 0.5]  # the fifth in, the sixth fading in
+    assert level_window(3, 1, 1.0).tolist() == [1, 1, 1]
+
+
+def test_closed_levels_carry_no_detail_and_a_reloaded_model_has_them_all():
+    fields = SceneFields(FieldConfig(sdf_levels=(8, 16, 32), mat_max_res=256), learn_intensity=False)
+    with torch.no_grad():
+        fields.mat_grid.table.uniform_(-1, 1)
+        fields.sdf_net.grids.table.uniform_(-1, 1)
+    x = torch.rand(500, 3) * 2 - 1
+    fields.set_coarse_to_fine(0.0)
+    coarse_feats = fields.mat_grid(x)
+    assert float(coarse_feats[:, 2 * fields.cfg.spec_levels:].abs().max()) == 0.0  # fine material levels off
+    assert float(fields.sdf_net.grids(x)[:, 4:].abs().max()) == 0.0  # only the 8^3 SDF grid speaks
+    fields.set_coarse_to_fine(1.0)
+    assert float(fields.mat_grid(x)[:, 2 * fields.cfg.spec_levels:].abs().max()) > 0.1
+    # the window is training state, not a weight: a model loaded from its state dict reads every level
+    fresh = SceneFields(fields.cfg, learn_intensity=False)
+    fresh.load_state_dict(fields.state_dict())
+    assert "mat_grid.level_weights" not in fields.state_dict()
+    assert torch.equal(fresh.mat_grid.level_weights, torch.ones_like(fresh.mat_grid.level_weights))
