@@ -48,6 +48,9 @@ def add_parser(sub) -> None:
     p.add_argument("--stage2-psf-sampler", choices=("mc", "antithetic", "lattice"),
                    help="--sr gaussian: the sampler of stage 2 (geometry frozen, BRDF refined); default: auto "
                         "lattice (low-noise Gaussian weights for the BRDF), otherwise the --psf-sampler of stage 1")
+    p.add_argument("--lattice-cell", type=float,
+                   help="lattice sampler: spacing of the shared rays in LR pixels, 0.05..1 (default 0.5; "
+                        "1 / sr factor puts one ray on each HR pixel)")
     p.add_argument("--stage2-fraction", type=float,
                    help="share of the run (time budget or --iters), 0..0.9, spent in stage 2 "
                         "(default: auto 0.3, fast 0.15, paper 0.1)")
@@ -195,6 +198,10 @@ def build_config(scene, args):
         changes["stage2_psf_sampler"] = (cfg.stage2_psf_sampler or "mc") if args.psf_sampler == "centre" else ""
     if args.stage2_psf_sampler is not None:
         changes["stage2_psf_sampler"] = args.stage2_psf_sampler
+    if args.lattice_cell is not None:
+        if not (math.isfinite(args.lattice_cell) and 0.05 <= args.lattice_cell <= 1.0):
+            raise SrvolError(f"--lattice-cell {args.lattice_cell}: must be between 0.05 and 1 LR pixel")
+        changes["lattice_cell"] = args.lattice_cell
     if args.stage2_fraction is not None:
         changes["stage2_fraction"] = _share(args.stage2_fraction, "--stage2-fraction", 0.9)
     if args.psf_warmup is not None:

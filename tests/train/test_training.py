@@ -424,6 +424,27 @@ def test_auto_caps_beta_at_the_pixel_footprint_and_keeps_thin_parts_sampling_for
             build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *bad]))
 
 
+def test_coarse_to_fine_and_lattice_cell_are_options_auto_leaves_off(default_scene):
+    """Both were measured on the tuning set and not adopted (suite_tuning.md): auto opens every grid
+    level from the start and spaces stage 2's lattice rays half an LR pixel apart; the flags set
+    them, and a value out of range is one line."""
+    import argparse
+
+    from srvol.train_cli import add_parser, build_config
+
+    scene = load_scene(default_scene)
+    auto = auto_config(scene, "gaussian", 60.0)
+    assert (auto.coarse_to_fine, auto.lattice_cell) == (0.0, 0.5)
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--coarse-to-fine", "0.3",
+                                             "--lattice-cell", "0.25"]))
+    assert (cfg.coarse_to_fine, cfg.lattice_cell) == (0.3, 0.25)
+    for bad in (["--coarse-to-fine", "0.95"], ["--lattice-cell", "2"], ["--lattice-cell", "nan"]):
+        with pytest.raises(SrvolError, match=bad[0]):
+            build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *bad]))
+
+
 def test_thin_share_is_the_part_of_a_silhouette_an_opening_removes():
     """A 20x20 block with a leg 2 pixels wide and 10 long (420 pixels). For a width of 4 the opening's
     disc has radius 2 (13 pixels): no such disc fits in the leg, so the leg goes (18 of its 20 pixels;
