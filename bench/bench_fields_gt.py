@@ -101,7 +101,8 @@ def main(argv=None) -> None:
     n = torch.nn.functional.normalize(g.detach(), dim=-1).numpy()
     ang = np.degrees(np.arccos(np.clip((n * n_gt).sum(-1), -1, 1)))[sel]
     print(f"normals vs GT: median {np.median(ang):.2f} deg, p90 {np.percentile(ang, 90):.2f}")
-    learned, gt = fields.material(x), _gt_material(surface)(x)
+    gt_material = _gt_material(surface)
+    learned, gt = fields.material(x), gt_material(x)
     for key in ("alpha", "specular"):
         a, b = getattr(learned, key)[sel, 0].numpy(), getattr(gt, key)[sel, 0].numpy()
         print(f"{key}: learned {_stats(a)} | GT {_stats(b)}")
@@ -110,16 +111,14 @@ def main(argv=None) -> None:
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
     intensity = torch.tensor(scene.info.light_intensity, dtype=torch.float32)
     own_sdf, own_material = fields.sdf_net, fields.material
-    arms = [("learned fields", own_sdf, own_material), ("learned geometry + GT material", own_sdf, gt)]
+    arms = [("learned fields", own_sdf, own_material), ("learned geometry + GT material", own_sdf, gt_material)]
     if hasattr(surface, "sdf"):
-        arms.append(("GT geometry + GT material", _GtSdf(surface.sdf), gt))
-    gt_material = _gt_material(surface)
+        arms.append(("GT geometry + GT material", _GtSdf(surface.sdf), gt_material))
     for cell in (float(c) for c in args.cells.split(",")):
         c = replace(cfg, lattice_cell=cell)
         print(f"training pixels through stage 2's estimator, lattice cell {cell} LR px:")
         for label, sdf_net, material in arms:
-            fields.sdf_net = sdf_net
-            fields.material = gt_material if material is gt else material
+            fields.sdf_net, fields.material = sdf_net, material
             se = {True: 0.0, False: 0.0}
             count = {True: 0.0, False: 0.0}
             for k in range(args.batches):

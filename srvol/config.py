@@ -77,11 +77,11 @@ class TrainConfig:
     (the paper: beta free). Keeps a blurred density from being a way out when the shape is far from
     the initial sphere."""
     beta_cap_end: float = 0.002
+    """Where the beta cap of ``beta_anneal`` ends (scene units)."""
     coarse_to_fine: float = 0.0
     """Stage 1: the grids' finer levels fade in one after another over this share of the run (time or
     iterations), the material's coarse levels and the SDF's coarsest grid on from the start
     (:meth:`SceneFields.set_coarse_to_fine`); 0 = every level from the start."""
-    """Where the beta cap of ``beta_anneal`` ends (scene units)."""
     silhouette_rays: float = 0.0
     """Share of the out-of-mask rays drawn from each view's mask bounding box (+2 px), where the mask
     carves gaps between legs or under a seat; the rest from anywhere outside the mask."""

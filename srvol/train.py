@@ -208,8 +208,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "
                 f"({rays_per_step(cfg, 2)} rays per step)")
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
-        fields.set_coarse_to_fine(progress_frac / cfg.coarse_to_fine if state.stage == 1 and cfg.coarse_to_fine > 0
-                                  else 1.0)
+        if cfg.coarse_to_fine > 0:  # without it every level stays open (the buffers' initial ones)
+            fields.set_coarse_to_fine(progress_frac / cfg.coarse_to_fine if state.stage == 1 else 1.0)
         intensity = fixed_I if fixed_I is not None else fields.intensity
         terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac, capture, shard)
         if not shard.all_true(bool(torch.isfinite(terms.total))):
