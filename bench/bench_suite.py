@@ -96,8 +96,8 @@ def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
 
 
 def run_rules(run: Path) -> str:
-    """The beta cap, refining samples, stage-1 rays, head width and material table a run trained with
-    (config.json), in words: runs of an older auto (beta free, no refining samples, 64-wide heads, PSF
+    """The beta cap, refining samples, stage-1 rays, head width, material table and SDF interpolation
+    a run trained with (config.json), in words: runs of an older auto (beta free, no refining samples, 64-wide heads, PSF
     pairs in stage 1 with a 2^14 material table) and today's are told apart in the table."""
     from srvol.config import read_run_config
 
@@ -109,7 +109,8 @@ def run_rules(run: Path) -> str:
     heads = f", heads {cfg.fields.sdf_hidden}" if cfg.fields.kind == "grid" else ""
     table = f", material 2^{cfg.fields.mat_table_log2}" if cfg.fields.kind == "grid" else ""
     c2f = f", coarse-to-fine {cfg.coarse_to_fine:g}" if cfg.coarse_to_fine else ""
-    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f
+    sdf = ", B-spline SDF" if cfg.fields.kind == "grid" and cfg.fields.sdf_interpolation == "bspline" else ""
+    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f + sdf
 
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:
@@ -245,7 +246,9 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "stage-1 rays, head width and material hash table the run trained with -- `beta free` marks a run of "
              "auto before the cap and the thin-parts rule (`srvol/presets.py`), a rule without `heads 32` a run of "
              "the twice larger model auto derived before, `2 PSF rays` with `material 2^14` a run of the auto "
-             "before stage 1's centre rays and the finer material grid, `(earlier run)` a row carried over from "
+             "before stage 1's centre rays and the finer material grid, `B-spline SDF` a run of the rule that gives "
+             "spread-out silhouettes quadratic B-spline SDF grids (rows without it on such scenes came before it), "
+             "`(earlier run)` a row carried over from "
              "the table before (its run folder was not on the machine that collected this one). Reproduce: `srvol bench suite "
              + command + "` (resumable; each run's commands below).", "",
              *summary_lines(rows, columns), "", "## Every run", "", *detail_lines(rows), "", "Commands:", ""]

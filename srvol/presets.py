@@ -71,6 +71,26 @@ def thin_share(masks: list[np.ndarray], width_lr_px: float) -> float:
     return float(np.mean(shares)) if shares else 0.0
 
 
+SOLIDITY_BSPLINE = 0.75
+"""auto: masks whose mean solidity (area / convex hull area) is below this get the quadratic B-spline
+SDF: a shape far from the sphere training starts from (wings, legs, open frames), which the
+smoothstep grids' terraces ripple as the surface travels across cells. Tuning set: stool 0.57,
+airplane 0.60, torus 0.92, glossy 0.99, bumpy/dark/shiny 0.99; 0.75 sits in the gap."""
+
+
+def silhouette_solidity(masks: list[np.ndarray]) -> float:
+    """Mean over views of the mask's area over its convex hull's area: 1 for a convex silhouette
+    (a ball), low where the silhouette is spread thin (wings, legs, rings). 1 for no masks."""
+    from skimage.morphology import convex_hull_image
+
+    shares = []
+    for mask in masks:
+        m = np.asarray(mask) > 0.5
+        if m.any():
+            shares.append(float(m.sum()) / float(convex_hull_image(m).sum()))
+    return float(np.mean(shares)) if shares else 1.0
+
+
 def fast_config(sr: str = "gaussian", psf_samples: int = 4) -> TrainConfig:
     return TrainConfig(preset="fast", fields=FieldConfig(kind="grid"), sampler=SamplerConfig(),
                        stage2_sampler=STAGE2_SAMPLER, sr=sr, psf_samples=psf_samples)
@@ -246,5 +266,15 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         reasons.append(f"no thin parts: {thin:.1%} of the mask pixels lie in parts narrower than the locating samples' "
                        f"spacing ({spacing_px:.1f} LR px; < {THIN_SHARE:.0%}), so no refining samples (on bumpy they "
                        "cost 0.7 dB at 600 s)")
+    solidity = silhouette_solidity([v.mask for v in scene.train_views() if v.mask is not None])
+    if solidity < SOLIDITY_BSPLINE:
+        cfg = replace(cfg, fields=replace(cfg.fields, sdf_interpolation="bspline"))
+        reasons.append(f"silhouettes far from convex (mean solidity {solidity:.2f} < {SOLIDITY_BSPLINE}): quadratic "
+                       "B-spline SDF grids -- smoothstep's terraces ripple a surface that travels far from the initial "
+                       "sphere (tuning scenes airplane, 600 s: 41.89 dB, 5.1 deg vs 39.02, 7.2; stool 42.42, 5.6 vs 40.15, 7.0), "
+                       "on near-convex shapes they cost (glossy -1.23 dB, torus -0.67, shiny -0.64; suite_tuning.md)")
+    else:
+        reasons.append(f"near-convex silhouettes (mean solidity {solidity:.2f} >= {SOLIDITY_BSPLINE}): smoothstep SDF "
+                       "grids, a third of the B-spline's cost per query")
     reasons.append(f"time budget {time_budget:.0f} s for both stages")
     return replace(cfg, reasons=tuple(reasons))

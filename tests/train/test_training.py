@@ -463,6 +463,37 @@ def test_thin_share_is_the_part_of_a_silhouette_an_opening_removes():
     assert thin_share([], 4.0) == 0.0
 
 
+def test_solidity_is_the_mask_over_its_convex_hull_and_a_spread_out_silhouette_gets_the_bspline_sdf(default_scene):
+    """A disc fills its convex hull (solidity ~1); a ring 6 px thick around a hole of radius 14 fills
+    1 - (14/20)^2 = 0.51 of the disc that is its hull. The default scene (a bumpy sphere) keeps
+    smoothstep SDF grids; the same scene seen as rings gets the B-spline, and says why."""
+    from srvol.presets import SOLIDITY_BSPLINE, silhouette_solidity
+
+    yy, xx = np.mgrid[-30:31, -30:31]
+    r2 = yy ** 2 + xx ** 2
+    disc, ring = r2 <= 20 ** 2, (r2 <= 20 ** 2) & (r2 > 14 ** 2)
+    # the hull of the pixels adds a rim half a pixel wide: ~4% of a disc of radius 20
+    assert silhouette_solidity([disc]) == pytest.approx(1.0, abs=0.05)
+    assert silhouette_solidity([ring]) == pytest.approx(1 - (14 / 20) ** 2, abs=0.04)
+    assert silhouette_solidity([]) == 1.0
+
+    scene = load_scene(default_scene)
+    auto = auto_config(scene, "gaussian", 60.0)
+    assert auto.fields.sdf_interpolation == "smoothstep"
+    assert any(r.startswith("near-convex silhouettes") for r in auto.reasons)
+    ringed = {}
+    for name, view in scene.views.items():
+        h, w = view.mask.shape
+        vy, vx = np.mgrid[0:h, 0:w]
+        d2 = (vy - h / 2) ** 2 + (vx - w / 2) ** 2
+        ringed[name] = replace(view, mask=(d2 <= (h / 3) ** 2) & (d2 > (h / 4) ** 2))
+    thin = replace(scene, views=ringed)
+    assert silhouette_solidity([v.mask for v in thin.train_views()]) < SOLIDITY_BSPLINE
+    auto = auto_config(thin, "gaussian", 60.0)
+    assert auto.fields.sdf_interpolation == "bspline"
+    assert any(r.startswith("silhouettes far from convex") for r in auto.reasons)
+
+
 def test_the_probe_psnr_is_the_same_for_the_same_model_and_moves_with_it(default_scene):
     """The log's probe PSNR: fixed pixels, rays and samples -- two calls on one model agree to the
     last digit; after a few steps of training it is higher."""
