@@ -97,8 +97,9 @@ def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
 
 def run_rules(run: Path) -> str:
     """The beta cap, refining samples, stage-1 rays, head width, material table and SDF interpolation
-    a run trained with (config.json), in words: runs of an older auto (beta free, no refining samples, 64-wide heads, PSF
-    pairs in stage 1 with a 2^14 material table) and today's are told apart in the table."""
+    a run trained with (config.json), in words: runs of an older auto (beta free, no refining samples,
+    64-wide heads, PSF pairs in stage 1 with a 2^14 material table, smoothstep SDF where the rule now
+    picks the B-spline) and today's are told apart in the table."""
     from srvol.config import read_run_config
 
     cfg = read_run_config(run).train

@@ -253,7 +253,8 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    f"first {BETA_ANNEAL:.0%} of the run: left free it rose to 0.24 on the tuning scene stool (a fog); on "
                    "bumpy, where it falls by itself, the cap changes nothing (37.13 vs 37.12 dB, 3.7 deg, 600 s)")
     spacing_px = 2 * stage1.bound / stage1.n_coarse / (hr * scene.info.sr_factor)
-    thin = thin_share([v.mask for v in scene.train_views() if v.mask is not None], spacing_px)
+    masks = [v.mask for v in scene.train_views() if v.mask is not None]
+    thin = thin_share(masks, spacing_px)
     if thin >= THIN_SHARE:
         cfg = replace(cfg, silhouette_rays=THIN_SILHOUETTE_RAYS, sampler=replace(stage1, n_refine=THIN_REFINE_SAMPLES),
                       stage2_sampler=replace(stage2, n_refine=THIN_REFINE_SAMPLES))
@@ -266,7 +267,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
         reasons.append(f"no thin parts: {thin:.1%} of the mask pixels lie in parts narrower than the locating samples' "
                        f"spacing ({spacing_px:.1f} LR px; < {THIN_SHARE:.0%}), so no refining samples (on bumpy they "
                        "cost 0.7 dB at 600 s)")
-    solidity = silhouette_solidity([v.mask for v in scene.train_views() if v.mask is not None])
+    solidity = silhouette_solidity(masks)
     if solidity < SOLIDITY_BSPLINE:
         cfg = replace(cfg, fields=replace(cfg.fields, sdf_interpolation="bspline"))
         reasons.append(f"silhouettes far from convex (mean solidity {solidity:.2f} < {SOLIDITY_BSPLINE}): quadratic "
@@ -275,6 +276,6 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                        "on near-convex shapes they cost (glossy -1.23 dB, torus -0.67, shiny -0.64; suite_tuning.md)")
     else:
         reasons.append(f"near-convex silhouettes (mean solidity {solidity:.2f} >= {SOLIDITY_BSPLINE}): smoothstep SDF "
-                       "grids, a third of the B-spline's cost per query")
+                       "grids, about half the B-spline's cost per training query")
     reasons.append(f"time budget {time_budget:.0f} s for both stages")
     return replace(cfg, reasons=tuple(reasons))
