@@ -17,6 +17,7 @@ import torch
 from srvol import metrics
 from srvol.data import Scene
 from srvol.errors import SrvolError
+from srvol.occupancy import OccupancyGrid
 from srvol.psf import blur_decimate
 from srvol.render import SamplerConfig, render_chunked
 from srvol.sheets import error_to_rgb, normal_to_rgb, write_sheet
@@ -31,11 +32,19 @@ class ViewRender:
     albedo: np.ndarray  # (H, W, 3) at the expected surface point
 
 
-def render_view(fields, camera: Camera, light: PointLight, sampler: SamplerConfig, chunk: int = 8192) -> ViewRender:
-    """Volume-render a whole image of ``camera`` under ``light`` (e.g. the co-located flash)."""
+def occupancy_of(fields, sampler: SamplerConfig) -> OccupancyGrid:
+    """The occupancy grid that spares evaluation the rays that cannot meet the surface."""
+    return OccupancyGrid.of_sdf(fields.sdf, float(fields.beta.detach()), sampler.bound)
+
+
+def render_view(fields, camera: Camera, light: PointLight, sampler: SamplerConfig, chunk: int = 8192,
+                occupancy: OccupancyGrid | None = None) -> ViewRender:
+    """Volume-render a whole image of ``camera`` under ``light`` (e.g. the co-located flash).
+    ``occupancy``: the fields' grid, shared by the views of one evaluation (built here without it)."""
     cam = camera.to("cpu", torch.float32)
     rays = cam.rays_at(cam.pixel_centers())
-    res: RenderResult = render_chunked(fields, rays, lambda r: light, sampler, chunk=chunk)
+    occupancy = occupancy if occupancy is not None else occupancy_of(fields, sampler)
+    res: RenderResult = render_chunked(fields, rays, lambda r: light, sampler, chunk=chunk, occupancy=occupancy)
     H, W = cam.height, cam.width
     op = res.opacity.reshape(H, W).numpy()
     n = res.normal.reshape(H, W, 3).numpy()
@@ -71,13 +80,14 @@ def evaluate_run(fields, scene: Scene, sampler: SamplerConfig, intensity, out_di
 
     per_view = []
     sheet_rows = []
+    occupancy = occupancy_of(fields, sampler)
     for stem in tqdm(test, desc="eval", unit="view", disable=not progress):
         gt_hr = scene.gt.image("hr", stem)
         if gt_hr is None:
             raise SrvolError(f"{scene.gt.root / 'hr' / (stem + '.exr')}: no HR ground truth for test view {stem}")
         cam = scene.hr_camera(stem)
         light = PointLight.at_camera(cam, intensity).to("cpu")
-        vr = render_view(fields, cam, light, sampler)
+        vr = render_view(fields, cam, light, sampler, occupancy=occupancy)
         m: dict = {"view": stem}
         mask = scene.gt.image("normal", stem)
         fg = gt_foreground(scene, stem)

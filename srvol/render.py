@@ -22,6 +22,7 @@ from torch import Tensor
 from srvol.brdf import shade
 from srvol.fields import SceneFields
 from srvol.geometry import ray_sphere
+from srvol.occupancy import OccupancyGrid
 from srvol.types import PointLight, Rays, RenderResult
 
 
@@ -291,14 +292,30 @@ def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: Sampl
                         sdf_gradients=g, albedo=albedo_ray if not skip_empty else None)
 
 
-def render_chunked(fields: SceneFields, rays: Rays, light_fn, cfg: SamplerConfig, chunk: int = 4096) -> RenderResult:
-    """Evaluation rendering in chunks (no parameter gradients). ``light_fn(rays_chunk) -> PointLight``."""
+def render_chunked(fields: SceneFields, rays: Rays, light_fn, cfg: SamplerConfig, chunk: int = 4096,
+                   occupancy: OccupancyGrid | None = None) -> RenderResult:
+    """Evaluation rendering in chunks (no parameter gradients). ``light_fn(rays_chunk) -> PointLight``.
+
+    ``occupancy``: rays that cross none of its cells are not traced (zero opacity, colour, normal
+    and depth, as the locating pass would have found); the others render exactly as without it."""
+    N = len(rays)
+    live = (occupancy.rays_that_may_hit(rays, cfg.bound) if occupancy is not None
+            else torch.ones(N, dtype=torch.bool, device=rays.origins.device))
+    idx = torch.nonzero(live).squeeze(-1)
+    traced = rays[idx]
     outs = []
-    for s in range(0, len(rays), chunk):
-        r = rays[s:s + chunk]
+    for s in range(0, len(traced), chunk):
+        r = traced[s:s + chunk]
         with torch.no_grad():  # normals still get their x-gradient inside sdf_and_gradient
             vr = volume_render(fields, r, light_fn(r), cfg, train_geometry=False, jitter=False, skip_empty=True)
         res = vr.result
         outs.append(RenderResult(res.rgb.detach(), res.opacity.detach(), res.normal.detach(), res.depth.detach()))
-    return RenderResult(rgb=torch.cat([o.rgb for o in outs]), opacity=torch.cat([o.opacity for o in outs]),
-                        normal=torch.cat([o.normal for o in outs]), depth=torch.cat([o.depth for o in outs]))
+
+    def scatter(parts: list[Tensor], width: int) -> Tensor:
+        full = torch.zeros((N, width) if width else (N,), dtype=rays.origins.dtype, device=rays.origins.device)
+        if parts:
+            full[idx] = torch.cat(parts)
+        return full
+
+    return RenderResult(rgb=scatter([o.rgb for o in outs], 3), opacity=scatter([o.opacity for o in outs], 0),
+                        normal=scatter([o.normal for o in outs], 3), depth=scatter([o.depth for o in outs], 0))
