@@ -48,6 +48,10 @@ def add_parser(sub) -> None:
     p.add_argument("--stage2-psf-sampler", choices=("mc", "antithetic", "lattice"),
                    help="--sr gaussian: the sampler of stage 2 (geometry frozen, BRDF refined); default: auto "
                         "lattice (low-noise Gaussian weights for the BRDF), otherwise the --psf-sampler of stage 1")
+    p.add_argument("--batch-scale", type=float, metavar="K",
+                   help="multiply the preset's pixels per step (both stages, the mask, eikonal and smoothness "
+                        "batches) by K: a GPU has room for many more rays per step than auto's CPU-sized "
+                        "batches (bench/results/cuda_table.md)")
     p.add_argument("--lattice-cell", type=float,
                    help="lattice sampler: spacing of the shared rays in LR pixels, 0.05..1 (default 0.5; "
                         "1 / sr factor puts one ray on each HR pixel)")
@@ -191,6 +195,13 @@ def build_config(scene, args):
         if args.sr == "gaussian":
             changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {batch_in} in-mask "
                                                 f"pixels per step x {args.psf_samples} rays",)
+    if args.batch_scale is not None:
+        if not (math.isfinite(args.batch_scale) and 0.25 <= args.batch_scale <= 64):
+            raise SrvolError(f"--batch-scale {args.batch_scale}: must be between 0.25 and 64")
+        for key in ("batch_in", "batch_out", "batch_eikonal", "batch_stage2", "batch_smooth"):
+            changes[key] = max(16, round(changes.get(key, getattr(cfg, key)) * args.batch_scale))
+        changes["reasons"] = changes.get("reasons", cfg.reasons) + (
+            f"--batch-scale {args.batch_scale:g} (asked): {args.batch_scale:g}x the pixels of every batch per step",)
     if args.psf_sampler is not None:
         changes["psf_sampler"] = args.psf_sampler
         # the asked sampler serves both stages unless stage 2's is asked too; "centre" serves stage 1 only

@@ -516,3 +516,23 @@ def test_the_probe_psnr_is_the_same_for_the_same_model_and_moves_with_it(default
     for _ in range(30):
         take_step(opts, compute_loss(fields, bank, cfg, psf, 1, gen, I).total)
     assert probe_psnr(fields, bank, probe, cfg, 1, I) > before + 1.0
+
+
+def test_batch_scale_multiplies_every_batch_of_the_preset(default_scene):
+    """--batch-scale 4 (a GPU has room for 4x the rays per step): every batch of auto is 4x, the
+    learning rates and the model are auto's; a scale out of range is one line."""
+    import argparse
+
+    from srvol.train_cli import add_parser, build_config
+
+    scene = load_scene(default_scene)
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+    base = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u"]))
+    cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--batch-scale", "4"]))
+    for key in ("batch_in", "batch_out", "batch_eikonal", "batch_stage2"):
+        assert getattr(cfg, key) == 4 * getattr(base, key)
+    assert (cfg.lr, cfg.fields) == (base.lr, base.fields)
+    for bad in (["--batch-scale", "0"], ["--batch-scale", "inf"], ["--batch-scale", "100"]):
+        with pytest.raises(SrvolError, match="--batch-scale"):
+            build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *bad]))
