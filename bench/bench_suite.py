@@ -97,7 +97,7 @@ def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
 
 def run_rules(run: Path) -> str:
     """The beta cap, refining samples, stage-1 rays, head width, material table and SDF interpolation
-    a run trained with (config.json), in words: runs of an older auto (beta free, no refining samples,
+    a run trained with (config.json), and stage 2's samples per ray (train_summary.json), in words: runs of an older auto (beta free, no refining samples,
     64-wide heads, PSF pairs in stage 1 with a 2^14 material table, smoothstep SDF where the rule now
     picks the B-spline) and today's are told apart in the table."""
     from srvol.config import read_run_config
@@ -111,7 +111,11 @@ def run_rules(run: Path) -> str:
     table = f", material 2^{cfg.fields.mat_table_log2}" if cfg.fields.kind == "grid" else ""
     c2f = f", coarse-to-fine {cfg.coarse_to_fine:g}" if cfg.coarse_to_fine else ""
     sdf = ", B-spline SDF" if cfg.fields.kind == "grid" and cfg.fields.sdf_interpolation == "bspline" else ""
-    return cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f + sdf
+    summary = run / "train_summary.json"
+    s2 = json.loads(summary.read_text()).get("stage2_samples", "") if summary.is_file() else ""
+    s2 = f", stage 2 {s2.replace(' ', '')} samples" if s2 else ""  # runs before the check recorded none
+    return (cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f
+            + sdf + s2)
 
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:

@@ -11,7 +11,7 @@ An LR pixel is estimated from the rays the stage's PSF sampler gives it
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as F
@@ -24,7 +24,7 @@ from srvol.errors import SrvolError
 from srvol.fields import SceneFields
 from srvol.pixels import PixelBank, PixelBatch, sample_pixels
 from srvol.psf import PsfSampler
-from srvol.render import RayRows, volume_render
+from srvol.render import RayRows, SamplerConfig, volume_render
 from srvol.types import PointLight, Rays
 
 
@@ -137,6 +137,54 @@ def probe_psnr(fields: SceneFields, bank: PixelBank, probe: PixelBatch, cfg: Tra
     if capture is not None:
         rgb = capture.apply(rgb, probe.estimate(vr.albedo.detach()), probe.view, probe.r2).detach()
     return psnr_of(*squared_error(rgb, probe))
+
+
+STAGE2_FIDELITY_DB = 0.25
+"""Stage 2's few samples per ray must render the frozen model within this of stage 1's on the
+probe pixels. On bumpy they do (16 + 4 gave +0.21 dB in 90 s against +0.10 at 32 + 12,
+stage2_table.md); on the tuning scenes stool and airplane (thin parts, B-spline SDF) they lost
+0.91 and 0.36 dB, and a step of stage 2 then fits the BRDF to the sampler's error."""
+
+STAGE2_FAITHFUL_IMPORTANCE = 6
+"""Gradient-carrying samples around the crossing in stage 2's fuller sampler (with stage 1's locating
+samples): on stool's finished model it renders the probe pixels to 0.05 dB of stage 1's 32 + 12 (16 + 4:
+0.91 dB below), at ~1.5x the cheap sampler's cost."""
+
+
+@dataclass(frozen=True)
+class Stage2Samples:
+    """The sampler stage 2 trains with and why: the probe PSNR with stage 1's sampler and with stage
+    2's cheap one (nan where there was no choice to make)."""
+
+    sampler: SamplerConfig
+    probe_stage1: float
+    probe_cheap: float
+
+    @property
+    def widened(self) -> bool:
+        return self.probe_stage1 - self.probe_cheap > STAGE2_FIDELITY_DB
+
+
+def choose_stage2_samples(fields: SceneFields, bank: PixelBank, probe: PixelBatch, cfg: TrainConfig,
+                          intensity: Tensor, capture: CaptureTerms | None = None) -> Stage2Samples:
+    """Once the geometry is frozen: keep stage 2's cheap sampler if it renders the probe pixels
+    within STAGE2_FIDELITY_DB of stage 1's, else take stage 1's locating samples and
+    STAGE2_FAITHFUL_IMPORTANCE gradient samples (the surface is where it was; only the
+    quadrature changes)."""
+    cheap, full = sampler_of_stage(cfg, 2), sampler_of_stage(cfg, 1)
+    if cheap == full:
+        return Stage2Samples(cheap, math.nan, math.nan)
+    p_full = probe_psnr(fields, bank, probe, replace(cfg, stage2_sampler=full), 2, intensity, capture)
+    p_cheap = probe_psnr(fields, bank, probe, cfg, 2, intensity, capture)
+    choice = Stage2Samples(cheap, p_full, p_cheap)
+    return Stage2Samples(faithful_stage2_sampler(cfg), p_full, p_cheap) if choice.widened else choice
+
+
+def faithful_stage2_sampler(cfg: TrainConfig) -> SamplerConfig:
+    """Stage 2's sampler with stage 1's locating samples and STAGE2_FAITHFUL_IMPORTANCE gradient ones."""
+    cheap, full = sampler_of_stage(cfg, 2), sampler_of_stage(cfg, 1)
+    return replace(cheap, n_coarse=max(cheap.n_coarse, full.n_coarse),
+                   n_importance=max(cheap.n_importance, STAGE2_FAITHFUL_IMPORTANCE))
 
 
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -18,12 +18,13 @@ from tqdm import tqdm
 from srvol.atomic import atomic_write_text
 from srvol.capture.terms import CaptureTerms
 from srvol.checkpoint import TrainState, freeze_geometry, load_checkpoint, save_checkpoint, save_snapshot, write_model
-from srvol.config import TrainConfig, rays_per_step
+from srvol.config import TrainConfig, rays_per_step, sampler_of_stage
 from srvol.data import Scene
 from srvol.distributed import SINGLE, Shard
 from srvol.errors import SrvolError
 from srvol.fields import BETA_INIT, SceneFields
-from srvol.losses import compute_loss, probe_pixels, probe_psnr, psnr_of
+from srvol.losses import (choose_stage2_samples, compute_loss, faithful_stage2_sampler, probe_pixels, probe_psnr,
+                          psnr_of)
 from srvol.pixels import PixelBank
 from srvol.psf import PsfSampler, SRMode
 
@@ -129,12 +130,35 @@ def recent_psnr(recent: deque[tuple[float, float]]) -> float:
     return psnr_of(sum(se for se, _ in recent), pixels) if pixels > 0 else float("nan")
 
 
+def settle_stage2_sampler(fields: SceneFields, bank: PixelBank, probe, cfg: TrainConfig, intensity,
+                          capture: CaptureTerms | None, shard: Shard, say) -> TrainConfig:
+    """``cfg`` with the stage-2 sampler :func:`choose_stage2_samples` picks on the frozen geometry
+    (rank 0 measures; every rank takes its answer)."""
+    choice = choose_stage2_samples(fields, bank, probe, cfg, intensity, capture) if shard.is_main else None
+    widened, = shard.agree(1.0 if choice is not None and choice.widened else 0.0)
+    if choice is not None and choice.probe_stage1 == choice.probe_stage1:  # not nan: there was a choice
+        cheap, full = sampler_of_stage(cfg, 2), sampler_of_stage(cfg, 1)
+        say(f"stage 2 samples: {cheap.n_coarse} + {cheap.gradient_samples} per ray render the probe pixels at "
+            f"{choice.probe_cheap:.2f} dB, stage 1's {full.n_coarse} + {full.gradient_samples} at "
+            f"{choice.probe_stage1:.2f} -- " + (f"widened to {choice.sampler.n_coarse} + "
+                                                f"{choice.sampler.gradient_samples}" if widened else "kept"))
+    return replace(cfg, stage2_sampler=faithful_stage2_sampler(cfg)) if widened else cfg
+
+
+def samples_in_words(cfg: TrainConfig) -> str:
+    """Stage 2's locating + gradient samples per ray, e.g. "16 + 4"."""
+    s = sampler_of_stage(cfg, 2)
+    return f"{s.n_coarse} + {s.gradient_samples}"
+
+
 @dataclass(frozen=True)
 class TrainSummary:
     iterations: int
     train_seconds: float
     final_psnr: float
     rollbacks: int
+    stage2_samples: str = ""
+    """Stage 2's locating + gradient samples per ray as trained ("" without a stage 2)."""
 
 
 def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, progress: bool = True,
@@ -166,6 +190,9 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         say(f"resuming at step {state.step} (stage {state.stage}, {state.elapsed:.0f} s trained)")
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
     probe = probe_pixels(bank, cfg, psf) if main else None
+    if state.stage == 2:  # the frozen geometry gives the same answer as when stage 2 began
+        cfg = settle_stage2_sampler(fields, bank, probe, cfg, fixed_I if fixed_I is not None else fields.intensity,
+                                    capture, shard, say)
     budget, = shard.agree(cfg.time_budget if cfg.iters == 0 else 0.0)  # rank 0's: one budget binds all ranks
     stage2_at = int(cfg.iters * (1 - cfg.stage2_fraction)) if cfg.iters else None
     log_path = run_dir / "log.jsonl"
@@ -205,6 +232,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             freeze_geometry(fields, capture)
             opts = make_optimizers(fields, cfg, 2, capture)
             recent.clear()  # the logged PSNR speaks of one stage
+            cfg = settle_stage2_sampler(fields, bank, probe, cfg,
+                                        fixed_I if fixed_I is not None else fields.intensity, capture, shard, say)
             say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "
                 f"({rays_per_step(cfg, 2)} rays per step)")
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
@@ -267,7 +296,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     if not main:
         shard.barrier()  # rank 0 writes the model: when train() returns, the run is complete on every rank
         return TrainSummary(iterations=state.step, train_seconds=state.elapsed,
-                            final_psnr=recent_psnr(recent), rollbacks=state.rollbacks)
+                            final_psnr=recent_psnr(recent), rollbacks=state.rollbacks,
+                            stage2_samples=samples_in_words(cfg) if state.stage == 2 else "")
     save_checkpoint(ckpt_dir, fields, opts, state, gen.get_state(), capture)
     if cfg.snapshots and snaps_done < cfg.snapshots:
         save_snapshot(run_dir / "snapshots", fields, state.step, state.elapsed)
@@ -276,4 +306,5 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         atomic_write_text(run_dir / CAPTURE_TERMS_NAME, json.dumps(capture.values(scene.train), indent=1) + "\n")
     shard.barrier()
     return TrainSummary(iterations=state.step, train_seconds=state.elapsed,
-                        final_psnr=recent_psnr(recent), rollbacks=state.rollbacks)
+                        final_psnr=recent_psnr(recent), rollbacks=state.rollbacks,
+                        stage2_samples=samples_in_words(cfg) if state.stage == 2 else "")

@@ -333,6 +333,7 @@ def _run_train(args, shard=None) -> int:
         {"iterations": summary.iterations, "train_seconds": round(summary.train_seconds, 2),
          "command_seconds": round(time.time() - t0, 2), "final_train_psnr": summary.final_psnr,
          "rollbacks": summary.rollbacks, "parameters": n_params, "peak_rss_gib": _peak_rss_gib(),
+         **({"stage2_samples": summary.stage2_samples} if summary.stage2_samples else {}),
          **({"peak_gpu_gib": round(torch.cuda.max_memory_allocated() / 2 ** 30, 3)} if args.device == "cuda" else {}),
          **({"ranks": shard.world} if shard.world > 1 else {})}, indent=1))
     print(f"trained {summary.iterations} iterations in {summary.train_seconds:.0f} s "

@@ -425,9 +425,13 @@ def test_auto_caps_beta_at_the_pixel_footprint_and_keeps_thin_parts_sampling_for
 
 
 def test_coarse_to_fine_and_lattice_cell_are_options_auto_leaves_off(default_scene):
-    """Both were measured on the tuning set and not adopted (suite_tuning.md): auto opens every grid
-    level from the start and spaces stage 2's lattice rays half an LR pixel apart; the flags set
-    them, and a value out of range is one line."""
+    """Coarse to fine was measured on the tuning set and not adopted (suite_tuning.md): auto opens
+    every grid level from the start. It spaces stage 2's lattice rays 4/3 of the PSF's sigma apart,
+    never under half an LR pixel (the default scene, sigma 0.375: 0.5; sigma 0.7: 0.933). The flags
+    set both, and a value out of range is one line."""
+    from srvol.presets import lattice_cell_for
+
+    assert [lattice_cell_for(s) for s in (0.25, 0.375, 0.6, 0.7)] == [0.5, 0.5, 0.8, 0.933]
     import argparse
 
     from srvol.train_cli import add_parser, build_config
@@ -536,3 +540,30 @@ def test_batch_scale_multiplies_every_batch_of_the_preset(default_scene):
     for bad in (["--batch-scale", "0"], ["--batch-scale", "inf"], ["--batch-scale", "100"]):
         with pytest.raises(SrvolError, match="--batch-scale"):
             build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *bad]))
+
+
+def test_stage2_widens_its_samples_where_they_render_the_frozen_model_worse_than_stage_1(default_scene):
+    """At the start of stage 2 the probe pixels are rendered with stage 1's samples per ray and with
+    stage 2's few: a sampler of 4 locating + 1 gradient samples misses the surface's weight and is
+    widened to stage 1's locating samples and 6 around the crossing; a stage 2 that samples as
+    stage 1 does has nothing to choose."""
+    from srvol.losses import STAGE2_FAITHFUL_IMPORTANCE, choose_stage2_samples, probe_pixels
+    from srvol.train import make_optimizers, take_step
+
+    scene = load_scene(default_scene)
+    cfg = _tiny(auto_config(scene, "gaussian", 60.0), 0)
+    bank = PixelBank(scene, torch.device("cpu"))
+    psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
+    probe = probe_pixels(bank, cfg, psf)
+    fields = SceneFields(cfg.fields, learn_intensity=False)
+    I = torch.tensor(scene.info.light_intensity)
+    opts = make_optimizers(fields, cfg, 1)
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(30):
+        take_step(opts, compute_loss(fields, bank, cfg, psf, 1, gen, I).total)
+    poor = replace(cfg, stage2_sampler=SamplerConfig(n_coarse=4, n_importance=1, n_uniform=0))
+    choice = choose_stage2_samples(fields, bank, probe, poor, I)
+    assert choice.widened and choice.probe_stage1 > choice.probe_cheap + 0.25
+    assert (choice.sampler.n_coarse, choice.sampler.n_importance) == (cfg.sampler.n_coarse, STAGE2_FAITHFUL_IMPORTANCE)
+    same = choose_stage2_samples(fields, bank, probe, replace(cfg, stage2_sampler=cfg.sampler), I)
+    assert not same.widened and same.sampler == cfg.sampler and math.isnan(same.probe_cheap)
