@@ -43,7 +43,7 @@ def continue_stage2(run: Path, sampler: str | None, ray_samples, seconds: float,
     from srvol.checkpoint import load_model
     from srvol.config import rays_per_step, read_run_config
     from srvol.data import load_scene
-    from srvol.evaluate import render_view
+    from srvol.evaluate import occupancy_of, render_view
     from srvol.losses import compute_loss
     from srvol.pixels import PixelBank
     from srvol.psf import PsfSampler, SRMode
@@ -73,10 +73,11 @@ def continue_stage2(run: Path, sampler: str | None, ray_samples, seconds: float,
             take_step(opts, compute_loss(fields, bank, cfg, psf, 2, gen, intensity).total)
             steps += 1
     psnr = []
+    occupancy = occupancy_of(fields, eval_sampler)  # the geometry is frozen: one grid for the views
     with torch.no_grad():
         for stem in scene.test[:views]:
             cam = scene.hr_camera(stem)
-            vr = render_view(fields, cam, PointLight.at_camera(cam, intensity), eval_sampler)
+            vr = render_view(fields, cam, PointLight.at_camera(cam, intensity), eval_sampler, occupancy=occupancy)
             psnr.append(metrics.psnr(vr.rgb, scene.gt.image("hr", stem)))
     return {"run": run.name, "sr": cfg.sr, "sampler": sampler or "(as trained)",
             "ray_samples": ray_samples_label(cfg.stage2_sampler or cfg.sampler) if sampler else "",

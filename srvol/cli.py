@@ -196,9 +196,11 @@ def _run_eval(args) -> int:
 def _run_eval_capture(args, fields, info, scene, cfg) -> int:
     """``srvol eval RUN --gt GT``: srvol.capture.evaluate with the run's volume renderer."""
     from srvol.capture.evaluate import evaluate_capture
-    from srvol.evaluate import render_view, write_metrics
+    from srvol.evaluate import occupancy_of, render_view, write_metrics
 
-    summary = evaluate_capture(scene, args.gt, lambda cam, light: render_view(fields, cam, light, cfg.sampler),
+    occupancy = occupancy_of(fields, cfg.sampler)  # one grid for every view
+    summary = evaluate_capture(scene, args.gt,
+                               lambda cam, light: render_view(fields, cam, light, cfg.sampler, occupancy=occupancy),
                                info.light_intensity, relit=None if args.no_relit else _neural_relit_fn(fields),
                                fields=fields, out_dir=args.run)
     out = args.json or args.run / "metrics.json"

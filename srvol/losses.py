@@ -164,6 +164,11 @@ class Stage2Samples:
     def widened(self) -> bool:
         return self.probe_stage1 - self.probe_cheap > STAGE2_FIDELITY_DB
 
+    @property
+    def measured(self) -> bool:
+        """Whether there was a choice to make (stage 2 samples differently from stage 1)."""
+        return not math.isnan(self.probe_stage1)
+
 
 def choose_stage2_samples(fields: SceneFields, bank: PixelBank, probe: PixelBatch, cfg: TrainConfig,
                           intensity: Tensor, capture: CaptureTerms | None = None) -> Stage2Samples:

@@ -226,6 +226,13 @@ def sample_along_rays(fields: SceneFields, rays: Rays, cfg: SamplerConfig, jitte
     return RaySamples(t=t, far=far, inside=inside, coarse_opacity=torch.where(has & inside, 1.0, w.sum(-1)))
 
 
+def scatter_rows(x: Tensor, rows: Tensor, n: int) -> Tensor:
+    """(len(rows), ...) values placed at ``rows`` of an (n, ...) tensor of zeros (the rays not traced)."""
+    out = torch.zeros((n, *x.shape[1:]), dtype=x.dtype, device=x.device)
+    out[rows] = x
+    return out
+
+
 def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: SamplerConfig,
                   train_geometry: bool, jitter: Jitter = True, shade_rays: Tensor | None = None,
                   min_weight: float = 1e-4, skip_empty: bool = False, with_albedo: bool = False) -> VolumeRender:
@@ -282,12 +289,7 @@ def volume_render(fields: SceneFields, rays: Rays, light: PointLight, cfg: Sampl
     normal = (w[..., None] * normals.reshape(n, S, 3)).sum(1)
     depth = (w * t).sum(1)
     if skip_empty:
-        def full(x):
-            out = torch.zeros((N, *x.shape[1:]), dtype=x.dtype, device=x.device)
-            out[live] = x
-            return out
-
-        rgb, opacity, normal, depth = full(rgb), full(opacity), full(normal), full(depth)
+        rgb, opacity, normal, depth = (scatter_rows(x, live, N) for x in (rgb, opacity, normal, depth))
     return VolumeRender(result=RenderResult(rgb=rgb, opacity=opacity, normal=normal, depth=depth),
                         sdf_gradients=g, albedo=albedo_ray if not skip_empty else None)
 
@@ -311,11 +313,12 @@ def render_chunked(fields: SceneFields, rays: Rays, light_fn, cfg: SamplerConfig
         res = vr.result
         outs.append(RenderResult(res.rgb.detach(), res.opacity.detach(), res.normal.detach(), res.depth.detach()))
 
-    def scatter(parts: list[Tensor], width: int) -> Tensor:
-        full = torch.zeros((N, width) if width else (N,), dtype=rays.origins.dtype, device=rays.origins.device)
-        if parts:
-            full[idx] = torch.cat(parts)
-        return full
+    if not outs:  # no ray can meet the surface
+        zeros = rays.origins.new_zeros
+        return RenderResult(rgb=zeros(N, 3), opacity=zeros(N), normal=zeros(N, 3), depth=zeros(N))
 
-    return RenderResult(rgb=scatter([o.rgb for o in outs], 3), opacity=scatter([o.opacity for o in outs], 0),
-                        normal=scatter([o.normal for o in outs], 3), depth=scatter([o.depth for o in outs], 0))
+    def gathered(parts: list[Tensor]) -> Tensor:
+        return scatter_rows(torch.cat(parts), idx, N)
+
+    return RenderResult(rgb=gathered([o.rgb for o in outs]), opacity=gathered([o.opacity for o in outs]),
+                        normal=gathered([o.normal for o in outs]), depth=gathered([o.depth for o in outs]))

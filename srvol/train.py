@@ -136,7 +136,7 @@ def settle_stage2_sampler(fields: SceneFields, bank: PixelBank, probe, cfg: Trai
     (rank 0 measures; every rank takes its answer)."""
     choice = choose_stage2_samples(fields, bank, probe, cfg, intensity, capture) if shard.is_main else None
     widened, = shard.agree(1.0 if choice is not None and choice.widened else 0.0)
-    if choice is not None and choice.probe_stage1 == choice.probe_stage1:  # not nan: there was a choice
+    if choice is not None and choice.measured:
         cheap, full = sampler_of_stage(cfg, 2), sampler_of_stage(cfg, 1)
         say(f"stage 2 samples: {cheap.n_coarse} + {cheap.gradient_samples} per ray render the probe pixels at "
             f"{choice.probe_cheap:.2f} dB, stage 1's {full.n_coarse} + {full.gradient_samples} at "
@@ -174,6 +174,11 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     learn_I = scene.info.light_intensity is None
     fields = SceneFields(cfg.fields, learn_intensity=learn_I).to(device)
     fixed_I = None if learn_I else torch.tensor(scene.info.light_intensity, dtype=torch.float32, device=device)
+
+    def light_intensity() -> torch.Tensor:
+        """The flash's intensity: the scene's, or the one training learns."""
+        return fixed_I if fixed_I is not None else fields.intensity
+
     bank = PixelBank(scene, device)
     capture = (CaptureTerms(len(scene.train), bank.camera_of_view, cfg.capture).to(device)
                if cfg.capture is not None else None)
@@ -191,8 +196,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
     probe = probe_pixels(bank, cfg, psf) if main else None
     if state.stage == 2:  # the frozen geometry gives the same answer as when stage 2 began
-        cfg = settle_stage2_sampler(fields, bank, probe, cfg, fixed_I if fixed_I is not None else fields.intensity,
-                                    capture, shard, say)
+        cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
     budget, = shard.agree(cfg.time_budget if cfg.iters == 0 else 0.0)  # rank 0's: one budget binds all ranks
     stage2_at = int(cfg.iters * (1 - cfg.stage2_fraction)) if cfg.iters else None
     log_path = run_dir / "log.jsonl"
@@ -232,14 +236,13 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             freeze_geometry(fields, capture)
             opts = make_optimizers(fields, cfg, 2, capture)
             recent.clear()  # the logged PSNR speaks of one stage
-            cfg = settle_stage2_sampler(fields, bank, probe, cfg,
-                                        fixed_I if fixed_I is not None else fields.intensity, capture, shard, say)
+            cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
             say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "
                 f"({rays_per_step(cfg, 2)} rays per step)")
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         if cfg.coarse_to_fine > 0:  # without it every level stays open (the buffers' initial ones)
             fields.set_coarse_to_fine(progress_frac / cfg.coarse_to_fine if state.stage == 1 else 1.0)
-        intensity = fixed_I if fixed_I is not None else fields.intensity
+        intensity = light_intensity()
         terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac, capture, shard)
         if not shard.all_true(bool(torch.isfinite(terms.total))):
             state.rollbacks += 1

@@ -4,18 +4,10 @@ import math
 
 import torch
 
-from srvol.fields import FieldConfig, SceneFields
 from srvol.occupancy import OccupancyGrid
 from srvol.render import SamplerConfig, render_chunked
 from srvol.types import Camera, PointLight
-
-
-def _ball(radius: float, beta: float) -> SceneFields:
-    f = SceneFields(FieldConfig(kind="grid", sdf_levels=(8,), mat_levels=2, mat_max_res=32, mat_table_log2=12,
-                                init_radius=radius), learn_intensity=False)
-    with torch.no_grad():
-        f.log_beta.fill_(math.log(beta))
-    return f
+from sphere_fields import sphere_fields
 
 
 def _camera(width: int = 48, height: int = 36) -> Camera:
@@ -28,7 +20,7 @@ def _camera(width: int = 48, height: int = 36) -> Camera:
 def test_a_ball_occupies_its_shell_and_interior_only():
     """A ball of radius 0.3: the corner cells of the cube are > 1 unit from it and stay empty; the
     centre cell (inside) and a cell on the surface are occupied."""
-    f = _ball(0.3, 0.002)
+    f = sphere_fields(0.3, 0.002)
     grid = OccupancyGrid.of_sdf(f.sdf, 0.002, resolution=32)
     occ = grid.occupied
     assert not occ[0, 0, 0] and not occ[-1, -1, -1]
@@ -41,7 +33,7 @@ def test_a_ball_occupies_its_shell_and_interior_only():
 
 
 def test_the_grid_skips_background_rays_and_changes_no_pixel():
-    f = _ball(0.3, 0.003)
+    f = sphere_fields(0.3, 0.003)
     cam = _camera()
     rays = cam.rays_at(cam.pixel_centers())
     light = PointLight.at_camera(cam, (5.0, 5.0, 5.0))
@@ -58,7 +50,7 @@ def test_the_grid_skips_background_rays_and_changes_no_pixel():
 
 
 def test_an_empty_grid_traces_no_ray():
-    f = _ball(0.3, 0.002)
+    f = sphere_fields(0.3, 0.002)
     with torch.no_grad():  # push the whole SDF far above zero: no surface anywhere
         f.sdf_net.head[-1].bias.add_(5.0)
     grid = OccupancyGrid.of_sdf(f.sdf, 0.002, resolution=16)

@@ -3,10 +3,10 @@ import math
 
 import torch
 
-from srvol.fields import FieldConfig, SceneFields
 from srvol.render import (SamplerConfig, laplace_density, render_weight_from_density, sample_from_weights,
                           volume_render)
 from srvol.types import PointLight, Rays
+from sphere_fields import sphere_fields
 
 
 def test_laplace_density_hand_values():
@@ -42,16 +42,8 @@ def test_importance_samples_follow_the_weights():
     assert inside > 0.98
 
 
-def _sphere_fields(radius: float, beta: float) -> SceneFields:
-    f = SceneFields(FieldConfig(kind="grid", sdf_levels=(8,), mat_levels=2, mat_max_res=32, mat_table_log2=12,
-                                init_radius=radius), learn_intensity=False)
-    with torch.no_grad():
-        f.log_beta.fill_(math.log(beta))
-    return f
-
-
 def test_render_of_initial_sphere_is_opaque_inside_and_empty_outside():
-    f = _sphere_fields(0.5, 0.005)
+    f = sphere_fields(0.5, 0.005)
     o = torch.tensor([[0.0, 0.0, -3.0], [0.0, 0.0, -3.0]])
     d = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.8, 1.0]])
     d = d / d.norm(dim=-1, keepdim=True)
@@ -72,7 +64,7 @@ def test_colocated_render_matches_closed_form_at_the_centre():
     from srvol.brdf import brdf
     from srvol.types import SurfaceMaterial
 
-    f = _sphere_fields(0.5, 0.002)
+    f = sphere_fields(0.5, 0.002)
     o = torch.tensor([[0.0, 0.0, -3.0]])
     rays = Rays(o, torch.tensor([[0.0, 0.0, 1.0]]))
     vr = volume_render(f, rays, PointLight(position=o, intensity=torch.full((3,), 9.0)),
@@ -89,7 +81,7 @@ def test_stage2_samples_per_ray_match_a_dense_render_once_the_surface_is_fixed()
     16 locating + 4 gradient samples give the colour of a 128 + 68-sample render to 0.5% on average."""
     from srvol.presets import STAGE2_SAMPLER
 
-    f = _sphere_fields(0.5, 0.001)
+    f = sphere_fields(0.5, 0.001)
     g = torch.Generator().manual_seed(0)
     r, a = 0.45 * torch.rand(400, generator=g).sqrt(), 2 * math.pi * torch.rand(400, generator=g)
     xy = torch.stack([r * torch.cos(a), r * torch.sin(a)], -1)  # a disc inside the sphere's silhouette
