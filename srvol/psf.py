@@ -75,13 +75,20 @@ def decimation_matrix(n_lr: int, sr: int, sigma_lr_px: float) -> np.ndarray:
 
 def blur_decimate(hr: np.ndarray, sr: int, sigma_lr_px: float) -> np.ndarray:
     """HR image (H*sr, W*sr, C) -> LR image (H, W, C) under the Gaussian PSF."""
+    from scipy.sparse import csr_matrix
+
     H, W = hr.shape[0] // sr, hr.shape[1] // sr
-    Ay = decimation_matrix(H, sr, sigma_lr_px)
-    Ax = decimation_matrix(W, sr, sigma_lr_px)
+    # The weights are banded (the Gaussian's support, a few sigma): as sparse matrices a 12 MP
+    # photo decimates in a tenth of a second instead of two (the same sums in float64).
+    Ay = csr_matrix(decimation_matrix(H, sr, sigma_lr_px))
+    Ax = csr_matrix(decimation_matrix(W, sr, sigma_lr_px))
     img = hr.astype(np.float64)
-    if img.ndim == 2:
-        return (Ay @ img @ Ax.T).astype(np.float32)
-    return np.einsum("ik,klc,jl->ijc", Ay, img, Ax, optimize=True).astype(np.float32)
+    flat = img.reshape(img.shape[0], img.shape[1], -1)  # (H*sr, W*sr, C)
+    C = flat.shape[2]
+    rows = (Ay @ flat.reshape(flat.shape[0], -1)).reshape(H, flat.shape[1], C)  # (H, W*sr, C)
+    cols = Ax @ rows.transpose(1, 0, 2).reshape(flat.shape[1], -1)  # (W, H*C)
+    out = cols.reshape(W, H, C).transpose(1, 0, 2)
+    return np.ascontiguousarray(out if img.ndim == 3 else out[..., 0], dtype=np.float32)
 
 
 def box_offsets(d: int) -> Tensor:

@@ -24,7 +24,7 @@ from srvol.capture.frame import (ObjectSphere, Similarity, normalization, object
                                  object_sphere_from_points, up_direction)
 from srvol.capture.photos import PhotoInfo, list_photos, notice, read_photo_srgb
 from srvol.capture.resolution import WorkingResolution, choose_resolution, scale_intrinsics, to_working
-from srvol.capture.sfm import SFM_THREADS, Registration, run_sfm, write_sfm_image
+from srvol.capture.sfm import SFM_THREADS, Registration, run_sfm, sfm_copy_side, write_sfm_image
 from srvol.data import SceneInfo, View, write_scene_folder
 from srvol.errors import SrvolError
 from srvol.images import srgb_to_linear
@@ -83,16 +83,17 @@ def import_capture(photos_dir: Path, out: Path, opts: ImportOptions = ImportOpti
         sfm_dir.mkdir(parents=True)
         use_sfm = opts.colmap is None and opts.transforms is None
         lr_images: dict[str, np.ndarray] = {}
+        copy_sides = {p.size: sfm_copy_side(max(res[p.name].size)) for p in photos}  # SfM copies, by photo size
         for p in tqdm(photos, desc="read photos", unit="photo", disable=not opts.progress):
             srgb = read_photo_srgb(p.path)
             if srgb.shape[:2] != (p.height, p.width):
                 raise SrvolError(f"{p.path}: size changed while reading")
             if use_sfm:
-                write_sfm_image(sfm_dir / f"{p.name}.jpg", srgb)
+                write_sfm_image(sfm_dir / f"{p.name}.jpg", srgb, copy_sides[p.size])
             lr_images[p.name] = to_working(srgb_to_linear(srgb), res[p.name])
         seconds["read"] = time.time() - t0
         t1 = time.time()
-        reg = _register(photos, opts, sfm_dir, work)
+        reg = _register(photos, opts, sfm_dir, work, copy_sides)
         seconds["poses"] = time.time() - t1
         _check_registered(photos, reg)
         sim, sphere = _normalize(reg)
@@ -136,7 +137,8 @@ def _working_resolution(photos: list[PhotoInfo], lr) -> dict[str, WorkingResolut
     return {p.name: by_size[p.size] for p in photos}
 
 
-def _register(photos: list[PhotoInfo], opts: ImportOptions, sfm_dir: Path, work: Path) -> Registration:
+def _register(photos: list[PhotoInfo], opts: ImportOptions, sfm_dir: Path, work: Path,
+              copy_sides: dict[tuple[int, int], int]) -> Registration:
     if opts.colmap is not None:
         from srvol.capture.external import load_colmap
 
@@ -147,7 +149,7 @@ def _register(photos: list[PhotoInfo], opts: ImportOptions, sfm_dir: Path, work:
         return load_transforms(opts.transforms, photos)
     print(f"structure from motion: {len(photos)} photos (pycolmap: SIFT, "
           f"{'exhaustive' if len(photos) <= 150 else 'sequential'} matching, incremental mapping)", flush=True)
-    return run_sfm(photos, sfm_dir, work, threads=opts.threads)
+    return run_sfm(photos, sfm_dir, work, threads=opts.threads, copy_sides=copy_sides)
 
 
 def _check_registered(photos: list[PhotoInfo], reg: Registration) -> None:

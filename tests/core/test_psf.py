@@ -66,6 +66,18 @@ def test_blur_decimate_of_a_step_is_between_its_levels():
     np.testing.assert_allclose(lr[:, 1] + lr[:, 2], 1.0, atol=1e-6)
 
 
+@pytest.mark.parametrize("shape, sr, sigma", [((36, 48, 3), 4, 0.375), ((33, 44), 11, 0.5), ((8, 8, 1), 1, 0.3)])
+def test_blur_decimate_is_the_decimation_matrices_applied_on_both_sides(shape, sr, sigma):
+    hr = np.random.default_rng(0).random(shape).astype(np.float32)
+    Ay = decimation_matrix(shape[0] // sr, sr, sigma)
+    Ax = decimation_matrix(shape[1] // sr, sr, sigma)
+    img = hr.astype(np.float64).reshape(shape[0], shape[1], -1)
+    want = np.einsum("ik,klc,jl->ijc", Ay, img, Ax).reshape(shape[0] // sr, shape[1] // sr, *shape[2:])
+    got = blur_decimate(hr, sr, sigma)
+    assert got.shape == want.shape and got.dtype == np.float32
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+
+
 def test_gaussian_offsets_have_zero_mean_and_std_sigma():
     n, sigma = 40_000, 0.375
     off = pixel_offsets(SRMode.GAUSSIAN, n_pixels=1000, n_samples=n // 1000, sigma_lr_px=sigma, sr=4,
