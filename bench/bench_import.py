@@ -174,9 +174,9 @@ def write_large_table(rows: list[ImportRow]) -> None:
              "synth_seconds includes the upscaling.", "",
              "Before the SfM copies were sized by the working resolution (twice it, here 732 px) and SIFT "
              "left out its doubled first octave on shrunk copies (srvol/capture/sfm.py), the same import made "
-             "1600-px copies with ~21k features each (median); matching took ~28 s a pair on one thread and had done "
-             "432 of the 4950 pairs after 20 minutes (about 38 hours in all). Four of the 732-px copies: "
-             "16.3-17.4k features and 28 s a pair with the doubled octave, 1.4k and 0.1 s without it.", "",
+             "1600-px copies with ~21k features each (median); its matching had done 432 of the 4950 pairs after "
+             "20 minutes on one thread, and it was stopped. Four of the 732-px copies: 16.3-17.4k features and 28 s "
+             "a pair with the doubled octave (about 38 hours for 4950 pairs), 1.4k and 0.1 s without it.", "",
              "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(str(getattr(r, c)) for c in cols) + " |" for r in rows]
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
