@@ -37,6 +37,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from bench.paths import REPO, write_result
 from srvol.capture.compare import (align_cameras, gt_mesh_in_capture_frame, gt_photo_cameras, mask_ious,
@@ -90,13 +91,19 @@ def bench_scene(name: str, photos: int) -> ImportRow:
     capture, scene = WORK / f"capture_{name}", WORK / f"scene_{name}"
     synth_s, _, _ = run([sys.executable, "-c", PEAK, "synth", name, "--capture", "--photos", str(photos),
                          "--out", str(capture), "--force"])
-    cmd = ["srvol", "import", str(capture / "photos"), "--out", str(scene), "--force"]
+    return import_and_score(name, capture / "photos", capture / "gt", scene, synth_s)
+
+
+def import_and_score(name: str, photos_dir: Path, gt_dir: Path, scene: Path, synth_s: float) -> ImportRow:
+    """``srvol import photos_dir --out scene`` (timed, its peak memory), scored against ``gt_dir``."""
+    cmd = ["srvol", "import", str(photos_dir), "--out", str(scene), "--force"]
     sec, cpu, peak = run([sys.executable, "-c", PEAK, *cmd[1:]])
-    gt = gt_photo_cameras(capture / "gt")
+    gt = gt_photo_cameras(gt_dir)
     cams = {Path(k).stem: c for k, c in read_cameras_json(scene / "cameras.json").items()}
     al = align_cameras(cams, gt)
-    ious = list(mask_ious(scene, capture / "gt").values())
-    w, h = next(iter(gt.values())).width, next(iter(gt.values())).height
+    ious = list(mask_ious(scene, gt_dir).values())
+    with Image.open(min(photos_dir.glob("*.jpg"))) as im:
+        w, h = im.size
     return ImportRow(scene=name, photos=len(gt), photo_size=f"{w}x{h}", registered=round(al.registered_share, 4),
                      rotation_median_deg=round(al.median_rotation_deg, 3),
                      rotation_max_deg=round(max(al.rotation_deg.values()), 3),
@@ -104,8 +111,7 @@ def bench_scene(name: str, photos: int) -> ImportRow:
                      import_seconds=round(sec, 1), import_cpu_seconds=round(cpu, 1), import_peak_mib=round(peak),
                      synth_seconds=round(synth_s, 1),
                      gt_mesh_to_points=round(points_to_mesh(object_points(scene),
-                                                            gt_mesh_in_capture_frame(scene, capture / "gt",
-                                                                                     al.scene_to_gt)), 5),
+                                                            gt_mesh_in_capture_frame(scene, gt_dir, al.scene_to_gt)), 5),
                      command=" ".join(cmd))
 
 
@@ -120,8 +126,6 @@ def make_large_photos(capture: Path) -> Path:
     """``capture``/photos_12mp/*.jpg: each photo of ``capture``/photos upscaled to LARGE_SIZE (bicubic,
     EXIF kept), and the GT photo masks upscaled with them (nearest), so that the GT describes the
     photos imported. Returns the folder of the large photos."""
-    from PIL import Image
-
     out_dir = capture / "photos_12mp"
     out_dir.mkdir(parents=True, exist_ok=True)
     for p in sorted((capture / "photos").glob("*.jpg")):
@@ -144,27 +148,17 @@ def bench_large(name: str, photos: int) -> ImportRow:
     run([sys.executable, "-c", PEAK, "synth", name, "--capture", "--photos", str(photos),
          "--photo-size", f"{small[0]}x{small[1]}", "--out", str(capture), "--force"])
     photos_dir = make_large_photos(capture)
-    synth_s = time.perf_counter() - t0
-    cmd = ["srvol", "import", str(photos_dir), "--out", str(scene), "--force"]
-    sec, cpu, peak = run([sys.executable, "-c", PEAK, *cmd[1:]])
-    gt = gt_photo_cameras(capture / "gt")
-    cams = {Path(k).stem: c for k, c in read_cameras_json(scene / "cameras.json").items()}
-    al = align_cameras(cams, gt)
-    ious = list(mask_ious(scene, capture / "gt").values())
-    return ImportRow(scene=name, photos=len(gt), photo_size=f"{LARGE_SIZE[0]}x{LARGE_SIZE[1]}",
-                     registered=round(al.registered_share, 4), rotation_median_deg=round(al.median_rotation_deg, 3),
-                     rotation_max_deg=round(max(al.rotation_deg.values()), 3),
-                     mask_iou_mean=round(float(np.mean(ious)), 4), mask_iou_min=round(float(np.min(ious)), 4),
-                     import_seconds=round(sec, 1), import_cpu_seconds=round(cpu, 1), import_peak_mib=round(peak),
-                     synth_seconds=round(synth_s, 1),
-                     gt_mesh_to_points=round(points_to_mesh(object_points(scene),
-                                                            gt_mesh_in_capture_frame(scene, capture / "gt",
-                                                                                     al.scene_to_gt)), 5),
-                     command=" ".join(cmd))
+    return import_and_score(name, photos_dir, capture / "gt", scene, time.perf_counter() - t0)
+
+
+def row_table(rows: list[ImportRow]) -> list[str]:
+    """Markdown lines of a table of ``rows`` (every field but the command)."""
+    cols = [c for c in asdict(rows[0]) if c != "command"]
+    return (["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+            + ["| " + " | ".join(str(getattr(r, c)) for c in cols) + " |" for r in rows])
 
 
 def write_large_table(rows: list[ImportRow]) -> None:
-    cols = [c for c in asdict(rows[0]) if c != "command"]
     lines = ["# srvol import of full-size phone photos (12 MP)", "",
              f"Each photo {LARGE_SIZE[0]}x{LARGE_SIZE[1]}: the capture synthesised at "
              f"{LARGE_SIZE[0] // LARGE_FROM}x{LARGE_SIZE[1] // LARGE_FROM} and upscaled x{LARGE_FROM} (bicubic, "
@@ -177,8 +171,7 @@ def write_large_table(rows: list[ImportRow]) -> None:
              "1600-px copies with ~21k features each (median); its matching had done 432 of the 4950 pairs after "
              "20 minutes on one thread, and it was stopped. Four of the 732-px copies: 16.3-17.4k features and 28 s "
              "a pair with the doubled octave (about 38 hours for 4950 pairs), 1.4k and 0.1 s without it.", "",
-             "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(str(getattr(r, c)) for c in cols) + " |" for r in rows]
+             *row_table(rows)]
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     lines += ["", "Commands (from the repository root):", ""] + [f"- `{r.command}`" for r in rows]
     lines += ["", f"Machine: {os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, "
@@ -204,11 +197,8 @@ def merged(rows: list[ImportRow]) -> list[ImportRow]:
 
 def write_tables(rows: list[ImportRow]) -> None:
     rows = merged(rows)
-    cols = [c for c in asdict(rows[0]) if c != "command"]
     lines = ["# srvol import: synthetic phone captures against their ground truth", "",
-             f"Targets: {TARGETS}.", "",
-             "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(str(getattr(r, c)) for c in cols) + " |" for r in rows]
+             f"Targets: {TARGETS}.", "", *row_table(rows)]
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     lines += ["", "Commands (from the repository root, after `srvol synth NAME --capture --out "
               "bench/work/capture_NAME`):", ""] + [f"- `{r.command}`" for r in rows]

@@ -79,7 +79,7 @@ def blur_decimate(hr: np.ndarray, sr: int, sigma_lr_px: float) -> np.ndarray:
 
     H, W = hr.shape[0] // sr, hr.shape[1] // sr
     # The weights are banded (the Gaussian's support, a few sigma): as sparse matrices a 12 MP
-    # photo decimates in a tenth of a second instead of two (the same sums in float64).
+    # photo decimates in 0.36 s instead of 2.6 s on one thread (the same sums in float64).
     Ay = csr_matrix(decimation_matrix(H, sr, sigma_lr_px))
     Ax = csr_matrix(decimation_matrix(W, sr, sigma_lr_px))
     img = hr.astype(np.float64)
