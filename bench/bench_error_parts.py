@@ -10,7 +10,9 @@ it, and scored as ``psnr_hr`` scores it (both images clipped to [0, 1]). The par
 * rest: the other object pixels; background: the other pixels.
 
 For each part it prints the share of the squared error, the share of the pixels, and the PSNR the
-view would have were that part perfect. Prints only (a diagnosis; suite_tuning.md quotes it).
+view would have were that part perfect; then the normal MAE (as ``srvol eval`` scores it) by distance
+from the GT silhouette in HR pixels (:data:`NORMAL_RINGS`). Prints only (a diagnosis;
+suite_tuning.md quotes it).
 """
 from __future__ import annotations
 
@@ -23,6 +25,8 @@ import numpy as np
 
 BAND_PX = 2
 HIGHLIGHT_SHARE = 0.02
+NORMAL_RINGS = ((0, 2), (2, 4), (4, 8), (8, None))
+"""Distance rings (HR pixels, inside the GT silhouette: (lo, hi]) of :func:`normal_error_by_ring`."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +60,23 @@ def split_error(pred: np.ndarray, gt: np.ndarray, object_mask: np.ndarray) -> Er
         for k, m in parts.items()})
 
 
+def normal_error_by_ring(pred_normal: np.ndarray, gt_normal: np.ndarray, scored: np.ndarray,
+                         object_mask: np.ndarray) -> list[tuple[tuple[int, int | None], float, float]]:
+    """Per ring of :data:`NORMAL_RINGS`: (ring, normal MAE in degrees over its ``scored`` pixels,
+    share of the scored pixels), distance measured inward from the edge of ``object_mask``."""
+    from scipy import ndimage
+
+    from srvol.metrics import normal_mae_deg
+
+    depth = ndimage.distance_transform_edt(object_mask)
+    rows = []
+    for lo, hi in NORMAL_RINGS:
+        ring = scored & (depth > lo) & (depth <= (np.inf if hi is None else hi))
+        mae = normal_mae_deg(pred_normal, gt_normal, ring) if ring.any() else float("nan")
+        rows.append(((lo, hi), mae, float(ring.sum()) / max(int(scored.sum()), 1)))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.bench_error_parts", description=__doc__.split("\n")[0])
     p.add_argument("run", type=Path, help="a run folder of a synthetic scene")
@@ -78,10 +99,15 @@ def main(argv: list[str] | None = None) -> int:
         if gt is None or normal is None:
             raise SystemExit(f"{args.run}: its scene has no GT HR view or normal map for {stem}")
         vr = render_view(fields, cam, PointLight.at_camera(cam, info.light_intensity), sampler, occupancy=occupancy)
-        e = split_error(vr.rgb, gt, np.linalg.norm(normal, axis=-1) > 0.5)
+        obj = np.linalg.norm(normal, axis=-1) > 0.5
+        e = split_error(vr.rgb, gt, obj)
         print(f"{args.run.name} {stem}: HR PSNR {e.psnr:.2f} | " + " | ".join(
             f"{k} {err:.0%} of the error, {px:.1%} of the pixels, {perfect:.2f} dB if perfect"
             for k, (err, px, perfect) in e.parts.items()), flush=True)
+        rings = normal_error_by_ring(vr.normal, normal, obj & (vr.opacity > 0.5), obj)
+        print(f"{args.run.name} {stem}: normal MAE by HR px from the silhouette | " + " | ".join(
+            f"({lo}, {'inf' if hi is None else hi}] {mae:.1f} deg on {share:.0%}" for (lo, hi), mae, share in rings),
+            flush=True)
     return 0
 
 

@@ -67,6 +67,10 @@ class TrainConfig:
     lr_grid: float = 1e-2
     lr_spec: float = 1e-3
     lr_beta: float = 1e-2
+    geometry_lr_tail: float = 1.0
+    """Stage 1: over its second half the SDF's learning rates fall by this further factor
+    (geometrically, on top of the run's decay), so the surface settles rather than moving with each
+    step's few hundred rays to the end (:func:`srvol.train.geometry_tail`); 1 = off (the paper)."""
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
     lambda_smooth: float = 0.0  # stage 1: weight of mean |n(x) - n(x + e)|^2 on the surface (losses.py); 0 = off

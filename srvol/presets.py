@@ -46,6 +46,9 @@ AUTO_STAGE2_FRACTION = 0.3
 BETA_ANNEAL = 0.3
 """auto: share of the run over which beta's cap falls from 0.1 to the HR pixel footprint."""
 
+GEOMETRY_LR_TAIL = 0.1
+"""auto: the further factor the SDF's learning rates fall by over the second half of stage 1."""
+
 THIN_SHARE = 0.03
 """auto: masks with at least this share of their pixels in parts narrower than the locating
 samples' spacing turn on the thin-parts sampling (refining samples, silhouette rays). On the
@@ -269,6 +272,12 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     reasons.append(f"VolSDF beta capped by a bound falling from 0.1 to {hr:.4f} (the HR pixel footprint) over the "
                    f"first {BETA_ANNEAL:.0%} of the run: left free it rose to 0.24 on the tuning scene stool (a fog); on "
                    "bumpy, where it falls by itself, the cap changes nothing (37.13 vs 37.12 dB, 3.7 deg, 600 s)")
+    cfg = replace(cfg, geometry_lr_tail=GEOMETRY_LR_TAIL)
+    reasons.append(f"the SDF's learning rates fall a further x{GEOMETRY_LR_TAIL:g} over the second half of stage 1 "
+                   "(at its end 0.02 of their start, not 0.2): Adam moves every parameter by about its learning rate "
+                   "whatever a step's few hundred rays say, and the surface kept moving by that to the end (tuning "
+                   "scenes, 600 s, side by side with auto: stool 44.14 dB, 4.15 deg vs 43.17, 4.48; airplane 43.71, "
+                   "3.42 vs 43.17, 4.64; suite_tuning.md)")
     spacing_px = 2 * stage1.bound / stage1.n_coarse / (hr * scene.info.sr_factor)
     masks = [v.mask for v in scene.train_views() if v.mask is not None]
     thin = thin_share(masks, spacing_px)

@@ -47,10 +47,11 @@ def make_optimizers(fields: SceneFields, cfg: TrainConfig, stage: int,
         if cfg.fields.kind == "grid":
             grid_p = [fields.sdf_net.grids.table]
             head_p = list(fields.sdf_net.head.parameters())
-            groups += [{"params": grid_p, "lr": cfg.lr_grid, "base_lr": cfg.lr_grid},
-                       {"params": head_p, "lr": cfg.lr, "base_lr": cfg.lr}]
+            groups += [{"params": grid_p, "lr": cfg.lr_grid, "base_lr": cfg.lr_grid, "geometry": True},
+                       {"params": head_p, "lr": cfg.lr, "base_lr": cfg.lr, "geometry": True}]
         else:
-            groups.append({"params": list(fields.sdf_net.parameters()), "lr": cfg.lr, "base_lr": cfg.lr})
+            groups.append({"params": list(fields.sdf_net.parameters()), "lr": cfg.lr, "base_lr": cfg.lr,
+                           "geometry": True})
         groups.append({"params": [fields.log_beta], "lr": cfg.lr_beta, "base_lr": cfg.lr_beta})
     groups += [{"params": albedo_p, "lr": cfg.lr, "base_lr": cfg.lr},
                {"params": spec_p, "lr": cfg.lr_spec, "base_lr": cfg.lr_spec}]
@@ -80,12 +81,22 @@ def restore_optimizers(fields: SceneFields, cfg: TrainConfig, ck,
     return opts
 
 
+def geometry_tail(progress: float, cfg: TrainConfig) -> float:
+    """The extra factor on the geometry's learning rates at ``progress`` of the run: 1 over the first
+    half of stage 1, then falling geometrically to ``cfg.geometry_lr_tail`` at stage 1's end."""
+    stage1 = 1.0 - cfg.stage2_fraction if cfg.stage2_fraction > 0 else 1.0
+    second_half = min(max(progress / max(stage1, 1e-9) * 2.0 - 1.0, 0.0), 1.0)
+    return cfg.geometry_lr_tail ** second_half
+
+
 def set_learning_rate(opts, progress: float, cfg: TrainConfig, scale: float) -> None:
-    """Exponential decay from base_lr to base_lr * lr_final / lr over training."""
+    """Exponential decay from base_lr to base_lr * lr_final / lr over training; the geometry's groups
+    also take :func:`geometry_tail`."""
     decay = (cfg.lr_final / cfg.lr) ** min(max(progress, 0.0), 1.0)
+    tail = geometry_tail(progress, cfg)
     for opt in opts:
         for g in opt.param_groups:
-            g["lr"] = g["base_lr"] * decay * scale
+            g["lr"] = g["base_lr"] * decay * scale * (tail if g.get("geometry") else 1.0)
 
 
 def take_step(opts: list[torch.optim.Optimizer], loss: torch.Tensor, shard: Shard = SINGLE) -> None:

@@ -52,6 +52,9 @@ def add_parser(sub) -> None:
                    help="multiply the preset's pixels per step (both stages, the mask, eikonal and smoothness "
                         "batches) by K: a GPU has room for many more rays per step than auto's CPU-sized "
                         "batches (bench/results/cuda_table.md)")
+    p.add_argument("--geometry-lr-tail", type=float, metavar="F",
+                   help="stage 1: the SDF's learning rates fall by a further factor F, 0.001..1, over the second "
+                        "half of stage 1, so the surface settles (auto 0.1; fast, paper 1 = off)")
     p.add_argument("--lattice-cell", type=float,
                    help="lattice sampler: spacing of the shared rays in LR pixels, 0.05..1 (default 0.5; "
                         "1 / sr factor puts one ray on each HR pixel)")
@@ -209,6 +212,10 @@ def build_config(scene, args):
         changes["stage2_psf_sampler"] = (cfg.stage2_psf_sampler or "mc") if args.psf_sampler == "centre" else ""
     if args.stage2_psf_sampler is not None:
         changes["stage2_psf_sampler"] = args.stage2_psf_sampler
+    if args.geometry_lr_tail is not None:
+        if not (math.isfinite(args.geometry_lr_tail) and 0.001 <= args.geometry_lr_tail <= 1.0):
+            raise SrvolError(f"--geometry-lr-tail {args.geometry_lr_tail}: must be between 0.001 and 1")
+        changes["geometry_lr_tail"] = args.geometry_lr_tail
     if args.lattice_cell is not None:
         if not (math.isfinite(args.lattice_cell) and 0.05 <= args.lattice_cell <= 1.0):
             raise SrvolError(f"--lattice-cell {args.lattice_cell}: must be between 0.05 and 1 LR pixel")

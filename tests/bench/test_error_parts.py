@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.bench_error_parts import split_error
+from bench.bench_error_parts import normal_error_by_ring, split_error
 
 
 def disc_scene():
@@ -39,3 +39,20 @@ def test_a_shrunken_silhouette_is_the_band_and_values_above_one_are_clipped():
     assert sum(share for share, _, _ in e.parts.values()) == pytest.approx(1.0)
     sse = ((np.clip(pred, 0, 1) - gt) ** 2).sum()
     assert e.psnr == pytest.approx(10 * np.log10(pred.size / sse))
+
+
+def test_normals_tilted_on_the_rim_show_in_the_first_ring_only():
+    """The disc's normals face the camera; the render tilts them 10 deg on its outer 2 pixels."""
+    gt, disc = disc_scene()
+    from scipy import ndimage
+
+    gt_n = np.where(disc[..., None], np.float32([0, 0, 1]), 0).astype(np.float32)
+    rim = disc & ~ndimage.binary_erosion(disc, iterations=2)
+    t = np.radians(10)
+    pred_n = np.where(rim[..., None], np.float32([np.sin(t), 0, np.cos(t)]), gt_n)
+    rows = normal_error_by_ring(pred_n, gt_n, disc, disc)
+    (first, mae0, share0), *inner = rows
+    assert first == (0, 2) and mae0 == pytest.approx(10, abs=1e-3)
+    assert all(mae == pytest.approx(0, abs=1e-3) for _, mae, _ in inner)
+    assert share0 == pytest.approx(rim.sum() / disc.sum(), abs=0.02)
+    assert sum(share for _, _, share in rows) == pytest.approx(1.0)

@@ -442,9 +442,10 @@ def test_coarse_to_fine_and_lattice_cell_are_options_auto_leaves_off(default_sce
     ap = argparse.ArgumentParser()
     add_parser(ap.add_subparsers())
     cfg = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", "--coarse-to-fine", "0.3",
-                                             "--lattice-cell", "0.25"]))
-    assert (cfg.coarse_to_fine, cfg.lattice_cell) == (0.3, 0.25)
-    for bad in (["--coarse-to-fine", "0.95"], ["--lattice-cell", "2"], ["--lattice-cell", "nan"]):
+                                             "--lattice-cell", "0.25", "--geometry-lr-tail", "1"]))
+    assert (cfg.coarse_to_fine, cfg.lattice_cell, cfg.geometry_lr_tail) == (0.3, 0.25, 1.0)
+    for bad in (["--coarse-to-fine", "0.95"], ["--lattice-cell", "2"], ["--lattice-cell", "nan"],
+                ["--geometry-lr-tail", "0"], ["--geometry-lr-tail", "1.5"]):
         with pytest.raises(SrvolError, match=bad[0]):
             build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "u", *bad]))
 
@@ -567,3 +568,23 @@ def test_stage2_widens_its_samples_where_they_render_the_frozen_model_worse_than
     assert (choice.sampler.n_coarse, choice.sampler.n_importance) == (cfg.sampler.n_coarse, STAGE2_FAITHFUL_IMPORTANCE)
     same = choose_stage2_samples(fields, bank, probe, replace(cfg, stage2_sampler=cfg.sampler), I)
     assert not same.widened and same.sampler == cfg.sampler and math.isnan(same.probe_cheap)
+
+
+def test_the_sdf_settles_over_the_second_half_of_stage_1(default_scene):
+    """auto's geometry_lr_tail 0.1 with stage 2 at 70 % of the run: the SDF's learning rates follow the
+    run's decay to 35 %, then fall a further x0.1 by 70 %; the material's keep the run's decay."""
+    from srvol.train import geometry_tail, make_optimizers, set_learning_rate
+
+    cfg = auto_config(load_scene(default_scene), "gaussian", 600.0)
+    assert (cfg.geometry_lr_tail, cfg.stage2_fraction) == (0.1, 0.3)
+    assert geometry_tail(0.0, cfg) == geometry_tail(0.35, cfg) == 1.0
+    assert math.isclose(geometry_tail(0.525, cfg), math.sqrt(0.1))
+    assert math.isclose(geometry_tail(0.7, cfg), 0.1) and math.isclose(geometry_tail(0.9, cfg), 0.1)
+    assert geometry_tail(0.7, replace(cfg, geometry_lr_tail=1.0)) == 1.0  # off: the paper's schedule
+    fields = SceneFields(cfg.fields, learn_intensity=False)
+    opt, = make_optimizers(fields, cfg, 1)
+    set_learning_rate([opt], 0.7, cfg, 1.0)
+    decay = (cfg.lr_final / cfg.lr) ** 0.7
+    lr = {id(p): g["lr"] for g in opt.param_groups for p in g["params"]}
+    assert math.isclose(lr[id(fields.sdf_net.grids.table)], cfg.lr_grid * decay * 0.1)
+    assert math.isclose(lr[id(fields.mat_grid.table)], cfg.lr_grid * decay)
