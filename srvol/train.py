@@ -84,8 +84,8 @@ def restore_optimizers(fields: SceneFields, cfg: TrainConfig, ck,
 def geometry_tail(progress: float, cfg: TrainConfig) -> float:
     """The extra factor on the geometry's learning rates at ``progress`` of the run: 1 over the first
     half of stage 1, then falling geometrically to ``cfg.geometry_lr_tail`` at stage 1's end."""
-    stage1 = 1.0 - cfg.stage2_fraction if cfg.stage2_fraction > 0 else 1.0
-    second_half = min(max(progress / max(stage1, 1e-9) * 2.0 - 1.0, 0.0), 1.0)
+    stage1_end = max(1.0 - cfg.stage2_fraction, 1e-9)
+    second_half = min(max(progress / stage1_end * 2.0 - 1.0, 0.0), 1.0)
     return cfg.geometry_lr_tail ** second_half
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from bench.bench_error_parts import normal_error_by_ring, split_error
 
@@ -44,8 +45,6 @@ def test_a_shrunken_silhouette_is_the_band_and_values_above_one_are_clipped():
 def test_normals_tilted_on_the_rim_show_in_the_first_ring_only():
     """The disc's normals face the camera; the render tilts them 10 deg on its outer 2 pixels."""
     gt, disc = disc_scene()
-    from scipy import ndimage
-
     gt_n = np.where(disc[..., None], np.float32([0, 0, 1]), 0).astype(np.float32)
     rim = disc & ~ndimage.binary_erosion(disc, iterations=2)
     t = np.radians(10)
