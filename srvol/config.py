@@ -75,6 +75,15 @@ class TrainConfig:
     lambda_mask: float = 0.1
     lambda_smooth: float = 0.0  # stage 1: weight of mean |n(x) - n(x + e)|^2 on the surface (losses.py); 0 = off
     batch_smooth: int = 256
+    lambda_anchor: float = 0.0
+    """Stage 1: weight of the anchor term over surface points found by stereo between the training
+    views (:mod:`srvol.anchors`): it opens concavities the photometric loss leaves closed; 0 = off
+    (the paper, and auto: suite_tuning.md)."""
+    batch_anchor: int = 256
+    anchor_fade: float = 0.5
+    """The anchor term's weight falls linearly from ``lambda_anchor`` to 0 over this share of the run:
+    the points are about an LR pixel off; they open the concavities early and the photometric loss
+    refines the surface after them."""
     beta_anneal: float = 0.0
     """Stage 1: VolSDF's beta is bounded above by a cap that falls geometrically from its start (0.1)
     to ``beta_cap_end`` over this share of the run (time or iterations), then stays there; 0 = no cap

@@ -4,6 +4,8 @@
       + lambda1 * mean (|grad d| - 1)^2  over random points and the ray samples
       + lambda2 * BCE(opacity, mask)     over in- and out-of-mask pixels
       + lambda_s * mean |n(x) - n(x + e)|^2  over points on the rendered surface (optional; not the paper's)
+      + lambda_a * (mean max(|d(p)| - tol, 0) + mean max(-d(x), 0))  over stereo points p of the
+                                         views and x on their lines of sight (optional; srvol.anchors)
 
 An LR pixel is estimated from the rays the stage's PSF sampler gives it
 (:func:`srvol.pixels.sample_pixels`). Stage 2 (geometry frozen) keeps the photometric term only.
@@ -17,6 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from srvol.anchors import AnchorPoints, anchor_loss
 from srvol.capture.terms import CaptureTerms
 from srvol.config import TrainConfig, psf_rays_per_pixel, sampler_of_stage
 from srvol.distributed import SINGLE, Shard
@@ -192,9 +195,18 @@ def faithful_stage2_sampler(cfg: TrainConfig) -> SamplerConfig:
                    n_importance=max(cheap.n_importance, STAGE2_FAITHFUL_IMPORTANCE))
 
 
+def anchor_weight(progress: float, cfg: TrainConfig) -> float:
+    """The anchor term's weight at ``progress`` of the run: ``lambda_anchor`` falling linearly to 0
+    at ``anchor_fade``."""
+    if cfg.lambda_anchor <= 0 or cfg.anchor_fade <= 0:
+        return 0.0
+    return cfg.lambda_anchor * max(0.0, 1.0 - progress / cfg.anchor_fade)
+
+
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
                  gen: torch.Generator, intensity: Tensor, progress: float = 1.0,
-                 capture: CaptureTerms | None = None, shard: Shard = SINGLE) -> LossTerms:
+                 capture: CaptureTerms | None = None, shard: Shard = SINGLE,
+                 anchors: AnchorPoints | None = None) -> LossTerms:
     """L1 on in-mask pixels (PSF estimates) + lambda_e eikonal + lambda_m mask BCE (stage 1 only).
     ``progress`` in [0, 1] (share of the run done) selects the PSF rays per pixel (psf_warmup).
     ``capture``: each ray is lit by its photo's flash, and the pixel estimates pass through the
@@ -254,6 +266,12 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
             if len(pts):
                 smooth = normal_smoothness(fields, pts, fields.finest_sdf_cell() or SMOOTH_SPREAD_MLP, gen)
                 total = total + cfg.lambda_smooth * smooth
+        weight = anchor_weight(progress, cfg)
+        if anchors is not None and weight > 0:
+            # every rank draws the same points (one generator state): its share is 1 / world of the term
+            anchor = anchor_loss(fields.sdf, anchors.points, anchors.eyes, cfg.batch_anchor, gen,
+                                 cfg.sampler.bound) / shard.world
+            total = total + weight * anchor
     se, pixels = squared_error(rgb, batch)
     # the logged figures speak of the whole step: sums over the ranks (each rank's share of a mean)
     se, pixels, ph, ek, mk = shard.total(se, pixels, float(photometric.detach()), float(eik.detach()),

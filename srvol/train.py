@@ -15,6 +15,7 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from srvol.anchors import AnchorPoints, Anchors, find_anchors
 from srvol.atomic import atomic_write_text
 from srvol.capture.terms import CaptureTerms
 from srvol.checkpoint import TrainState, freeze_geometry, load_checkpoint, save_checkpoint, save_snapshot, write_model
@@ -156,6 +157,28 @@ def settle_stage2_sampler(fields: SceneFields, bank: PixelBank, probe, cfg: Trai
     return replace(cfg, stage2_sampler=faithful_stage2_sampler(cfg)) if widened else cfg
 
 
+ANCHORS_NAME = "anchors.npz"
+"""The run's anchor points (:mod:`srvol.anchors`): found once, read back on --resume."""
+
+
+def surface_anchors(scene: Scene, cfg: TrainConfig, stage: int, run_dir: Path, device, say) -> AnchorPoints | None:
+    """The anchors of ``cfg.lambda_anchor`` (:mod:`srvol.anchors`) on ``device``: None when the
+    term is off or stage 1 is over. Found by stereo on the training views once per run (every rank
+    finds the same points: no randomness) and kept in the run folder."""
+    if cfg.lambda_anchor <= 0 or stage != 1:
+        return None
+    path = run_dir / ANCHORS_NAME
+    if path.is_file():
+        found = Anchors.load(path)
+    else:
+        t0 = time.time()
+        found = find_anchors(scene, cfg.sampler.bound)
+        say(f"anchors: {len(found)} surface points by stereo between neighbouring training views "
+            f"({time.time() - t0:.0f} s, counted in the budget)" + ("" if len(found) else " -- the term is off"))
+        found.save(path)
+    return AnchorPoints.of(found, device) if len(found) else None
+
+
 def samples_in_words(cfg: TrainConfig) -> str:
     """Stage 2's locating + gradient samples per ray, e.g. "16 + 4"."""
     s = sampler_of_stage(cfg, 2)
@@ -205,13 +228,16 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         gen.set_state(ck.generator_state)
         say(f"resuming at step {state.step} (stage {state.stage}, {state.elapsed:.0f} s trained)")
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
+    t_anchors = time.time()
+    anchors = surface_anchors(scene, cfg, state.stage, run_dir, device, say)
+    anchor_seconds = time.time() - t_anchors  # the stereo's time is the run's (20-80 s on the suite's scenes)
     probe = probe_pixels(bank, cfg, psf) if main else None
     if state.stage == 2:  # the frozen geometry gives the same answer as when stage 2 began
         cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
     budget, = shard.agree(cfg.time_budget if cfg.iters == 0 else 0.0)  # rank 0's: one budget binds all ranks
     stage2_at = int(cfg.iters * (1 - cfg.stage2_fraction)) if cfg.iters else None
     log_path = run_dir / "log.jsonl"
-    t_start = time.time() - state.elapsed
+    t_start = time.time() - state.elapsed - anchor_seconds
     bar = tqdm(total=cfg.iters or int(budget), disable=not (progress and main), unit="it" if cfg.iters else "s",
                desc="train", initial=state.step if cfg.iters else int(state.elapsed))
     recent: deque[tuple[float, float]] = deque(maxlen=cfg.log_every)  # (squared error, pixels) of the last steps
@@ -254,7 +280,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         if cfg.coarse_to_fine > 0:  # without it every level stays open (the buffers' initial ones)
             fields.set_coarse_to_fine(progress_frac / cfg.coarse_to_fine if state.stage == 1 else 1.0)
         intensity = light_intensity()
-        terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac, capture, shard)
+        terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac, capture, shard,
+                             anchors)
         if not shard.all_true(bool(torch.isfinite(terms.total))):
             state.rollbacks += 1
             if state.rollbacks > 5:

@@ -95,6 +95,12 @@ def add_parser(sub) -> None:
     p.add_argument("--normal-smoothness", type=float, metavar="W",
                    help="stage 1: weight of a term that keeps the normal from turning within one SDF grid cell "
                         "(mean |n(x) - n(x + e)|^2 on the rendered surface; 0 = off)")
+    p.add_argument("--anchors", type=float, metavar="W",
+                   help="stage 1: weight of a term that holds the SDF to surface points found by stereo between "
+                        "neighbouring training views and keeps their lines of sight free; it opens concavities "
+                        "(a cup's inside, a bowl) that the photometric loss leaves closed, fading out by half the "
+                        "run (default 0 = off; 1 on the tuning scene glossy: normals 1.5 vs 5.2 deg, see "
+                        "bench/results/suite_tuning.md)")
     p.add_argument("--sdf-interpolation", choices=SDF_INTERPOLATIONS,
                    help="grid presets: how the SDF grids interpolate (default smoothstep). bspline (quadratic) "
                         "draws flat faces flat but costs 3x per SDF query: in 600 s the tuning scene stool (flat "
@@ -201,7 +207,8 @@ def build_config(scene, args):
     if args.batch_scale is not None:
         if not (math.isfinite(args.batch_scale) and 0.25 <= args.batch_scale <= 64):
             raise SrvolError(f"--batch-scale {args.batch_scale}: must be between 0.25 and 64")
-        for key in ("batch_in", "batch_out", "batch_eikonal", "batch_stage2", "batch_smooth"):
+        for key in ("batch_in", "batch_out", "batch_eikonal", "batch_stage2", "batch_smooth",
+                    "batch_anchor"):
             changes[key] = max(16, round(changes.get(key, getattr(cfg, key)) * args.batch_scale))
         changes["reasons"] = changes.get("reasons", cfg.reasons) + (
             f"--batch-scale {args.batch_scale:g} (asked): {args.batch_scale:g}x the pixels of every batch per step",)
@@ -248,6 +255,10 @@ def build_config(scene, args):
         if not (math.isfinite(args.normal_smoothness) and 0 <= args.normal_smoothness <= 10):
             raise SrvolError(f"--normal-smoothness {args.normal_smoothness}: must be between 0 and 10")
         changes["lambda_smooth"] = args.normal_smoothness
+    if args.anchors is not None:
+        if not (math.isfinite(args.anchors) and 0 <= args.anchors <= 100):
+            raise SrvolError(f"--anchors {args.anchors}: must be between 0 and 100")
+        changes["lambda_anchor"] = args.anchors
     if args.sdf_interpolation is not None:
         if cfg.fields.kind != "grid":
             raise SrvolError(f"--sdf-interpolation applies to the grid presets (fast, auto), not {cfg.preset}")

@@ -43,6 +43,18 @@ def default_scene(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def textured_scene(tmp_path_factory):
+    """The default scene at a size stereo finds surface points in (LR 80x60, 40 + 1 views: neighbours
+    within 40 deg)."""
+    from srvol.synth.generate import SynthOptions, synthesize
+
+    out = tmp_path_factory.mktemp("scenes") / "bumpy_stereo"
+    synthesize("bumpy", out, SynthOptions(lr=(80, 60), views=40, test_views=1, relit_views=1, ss=1),
+               progress=False)
+    return out
+
+
 GLTF_VALIDATOR_DIR = Path(__file__).parent / "export" / "node"
 """The Khronos glTF validator (npm gltf-validator, pinned by its package-lock.json) and validate.js."""
 
