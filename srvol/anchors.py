@@ -109,10 +109,15 @@ class DepthMap:
     score: Tensor
 
 
+def luminance_and_mask(view: View) -> tuple[np.ndarray, np.ndarray]:
+    """A view's linear luminance (H, W) and its mask (all True without one)."""
+    lum = view.image @ np.array([0.2126, 0.7152, 0.0722])
+    return lum, view.mask if view.mask is not None else np.ones(lum.shape, bool)
+
+
 def highlights(view: View) -> Tensor:
     """(H, W) float: 1 on and within PATCH // 2 pixels of a highlight (HIGHLIGHT_RATIO)."""
-    lum = view.image @ np.array([0.2126, 0.7152, 0.0722])
-    mask = view.mask if view.mask is not None else np.ones(lum.shape, bool)
+    lum, mask = luminance_and_mask(view)
     med = float(np.median(lum[mask])) if mask.any() else 0.0
     hot = torch.from_numpy(lum > HIGHLIGHT_RATIO * max(med, 1e-8)).float()
     return F.max_pool2d(hot[None, None], PATCH, 1, PATCH // 2)[0, 0]
@@ -121,8 +126,7 @@ def highlights(view: View) -> Tensor:
 def grey(view: View) -> Tensor:
     """A view's image as stereo compares it: luminance scaled to its in-mask 99th percentile, gamma
     2.2 (the flash's highlights clip), (H, W)."""
-    lum = view.image @ np.array([0.2126, 0.7152, 0.0722])
-    mask = view.mask if view.mask is not None else np.ones(lum.shape, bool)
+    lum, mask = luminance_and_mask(view)
     top = float(np.percentile(lum[mask], 99)) if mask.any() else 1.0
     return torch.from_numpy(np.clip(lum / max(top, 1e-8), 0, 1) ** (1 / 2.2)).float()
 
@@ -143,12 +147,9 @@ def neighbour_views(views: list[View]) -> list[list[int]]:
 
 def pixel_rays(view: View) -> tuple[Tensor, Tensor]:
     """(centre (3,), unit directions (H, W, 3)) of a view's pixel centres."""
-    cam = view.camera.to("cpu")
-    H, W = view.image.shape[:2]
-    jj, ii = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32),
-                            indexing="ij")
-    rays = cam.rays_at(torch.stack([ii.reshape(-1) + 0.5, jj.reshape(-1) + 0.5], -1))
-    return cam.center.float(), rays.directions.reshape(H, W, 3).float()
+    cam = view.camera.to("cpu")  # float32
+    rays = cam.rays_at(cam.pixel_centers())
+    return cam.center, rays.directions.reshape(cam.height, cam.width, 3)
 
 
 def project(view: View, X: Tensor) -> tuple[Tensor, Tensor]:
@@ -159,11 +160,15 @@ def project(view: View, X: Tensor) -> tuple[Tensor, Tensor]:
     return h[..., :2] / h[..., 2:].clamp_min(1e-6), Xc[..., 2]
 
 
+def box_mean(x: Tensor) -> Tensor:
+    """Mean over each PATCH x PATCH window of images x (N, H, W) (windows clipped at the border)."""
+    return F.avg_pool2d(x[:, None], PATCH, 1, PATCH // 2, count_include_pad=False)[:, 0]
+
+
 def local_stats(x: Tensor) -> tuple[Tensor, Tensor]:
     """Mean and variance over each PATCH x PATCH window of images x (N, H, W)."""
-    pool = lambda t: F.avg_pool2d(t[:, None], PATCH, 1, PATCH // 2, count_include_pad=False)[:, 0]
-    mu = pool(x)
-    return mu, (pool(x * x) - mu * mu).clamp_min(0)
+    mu = box_mean(x)
+    return mu, (box_mean(x * x) - mu * mu).clamp_min(0)
 
 
 def sweep(a: int, views: list[View], greys: list[Tensor], hots: list[Tensor], nbrs: list[int],
@@ -176,19 +181,18 @@ def sweep(a: int, views: list[View], greys: list[Tensor], hots: list[Tensor], nb
     t = torch.linspace(max(dist - bound, 1e-3), dist + bound, DEPTHS)
     ga = greys[a][None]
     mu_a, var_a = local_stats(ga)
+    X = centre + t[:, None, None, None] * dirs  # (D, H, W, 3): each pixel's depth hypotheses
     ncc = []
     for b in nbrs:
         vb = views[b]
         Hb, Wb = greys[b].shape
-        X = centre + t[:, None, None, None] * dirs  # (D, H, W, 3)
         uv, z = project(vb, X)
         grid = torch.stack([uv[..., 0] / Wb * 2 - 1, uv[..., 1] / Hb * 2 - 1], -1)
         pair = torch.stack([greys[b], hots[b]])[None].expand(DEPTHS, 2, Hb, Wb)
         both = F.grid_sample(pair, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
         warped, hot = both[:, 0], both[:, 1]  # (D, H, W)
         mu_w, var_w = local_stats(warped)
-        pool = F.avg_pool2d((ga * warped)[:, None], PATCH, 1, PATCH // 2, count_include_pad=False)[:, 0]
-        cov = pool - mu_a * mu_w
+        cov = box_mean(ga * warped) - mu_a * mu_w
         c = cov / (var_a * var_w + 1e-8).sqrt()
         inside = (z > 0) & (grid.abs() <= 1).all(-1)
         hot = F.max_pool2d(hot[:, None], PATCH, 1, PATCH // 2)[:, 0] > 0
@@ -230,7 +234,7 @@ def find_anchors(scene: Scene, bound: float = 1.0) -> Anchors:
         X = centre + m.depth[ok][:, None] * dirs[ok]
         agree = torch.zeros(len(X), dtype=torch.bool)
         for b in nbrs[a]:
-            cb, _ = pixel_rays(views[b])
+            cb = views[b].camera.center.float()
             uv, z = project(views[b], X)
             Hb, Wb = maps[b].depth.shape
             i, j = uv[:, 0].floor().long(), uv[:, 1].floor().long()
