@@ -114,8 +114,9 @@ def run_rules(run: Path) -> str:
     summary = run / "train_summary.json"
     s2 = json.loads(summary.read_text()).get("stage2_samples", "") if summary.is_file() else ""
     s2 = f", stage 2 {s2.replace(' ', '')} samples" if s2 else ""  # runs before the check recorded none
+    drawn = f", stage 2 error map {cfg.stage2_importance:g}" if cfg.stage2_importance else ""
     return (cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f
-            + sdf + s2)
+            + sdf + s2 + drawn)
 
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:

@@ -67,6 +67,10 @@ class TrainConfig:
     lr_grid: float = 1e-2
     lr_spec: float = 1e-3
     lr_beta: float = 1e-2
+    stage2_importance: float = 0.0
+    """Stage 2: this share of the in-mask pixels (patch centres) is drawn in proportion to an error
+    map of the training views, the rest uniformly, each pixel weighted by uniform over drawn
+    probability (:mod:`srvol.error_map`); 0 = a uniform draw (the paper)."""
     geometry_lr_tail: float = 1.0
     """Stage 1: over its second half the SDF's learning rates fall by this further factor
     (geometrically, on top of the run's decay), so the surface settles rather than moving with each

@@ -75,6 +75,24 @@ class Shard:
         torch.distributed.broadcast(t, src=0)
         return tuple(t.tolist())
 
+    def broadcast(self, t: Tensor) -> Tensor:
+        """Rank 0's tensor ``t`` on every rank (same shape and dtype everywhere), on ``t``'s device."""
+        if self.world == 1:
+            return t
+        out = t.detach().to(_device()).clone()
+        torch.distributed.broadcast(out, src=0)
+        return out.to(t.device)
+
+    def gather_span(self, values: Tensor, lo: int, n: int) -> Tensor:
+        """(n,) every rank's ``values``, each at its place ``lo`` in the whole (this rank's share of
+        per-group numbers, e.g. its groups' errors), on ``values``' device."""
+        if self.world == 1:
+            return values
+        whole = torch.zeros(n, dtype=torch.float64, device=_device())
+        whole[lo:lo + len(values)] = values.detach().to(whole.device, torch.float64)
+        torch.distributed.all_reduce(whole)
+        return whole.to(values.device, values.dtype)
+
     def all_true(self, flag: bool) -> bool:
         """Whether ``flag`` holds on every rank (a finite loss: one rank's NaN rolls all ranks back)."""
         if self.world == 1:

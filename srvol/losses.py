@@ -23,9 +23,10 @@ from srvol.anchors import AnchorPoints, anchor_loss
 from srvol.capture.terms import CaptureTerms
 from srvol.config import TrainConfig, psf_rays_per_pixel, sampler_of_stage
 from srvol.distributed import SINGLE, Shard
+from srvol.error_map import ErrorMap, every_other, nearest_even, patch_sums
 from srvol.errors import SrvolError
 from srvol.fields import SceneFields
-from srvol.pixels import PixelBank, PixelBatch, sample_pixels
+from srvol.pixels import PixelBank, PixelBatch, group_side, sample_pixels
 from srvol.psf import PsfSampler
 from srvol.render import RayRows, SamplerConfig, volume_render
 from srvol.types import PointLight, Rays
@@ -56,9 +57,10 @@ def psnr_of(squared_error: float, pixels: float) -> float:
 
 
 def photometric_l1(estimate: Tensor, batch: PixelBatch, count: float | None = None) -> Tensor:
-    """Mean L1 over the batch's foreground pixels (a lattice patch may reach past the silhouette);
-    ``count``: divide by this many pixels instead (all ranks' foreground pixels)."""
-    fg = batch.mask
+    """Mean L1 over the batch's foreground pixels (a lattice patch may reach past the silhouette),
+    each weighted by its importance when an error map drew them; ``count``: divide by this instead
+    (all ranks' weighted foreground pixels)."""
+    fg = batch.pixel_weight
     per_pixel = (estimate - batch.target).abs().mean(-1) * fg
     return per_pixel.sum() / (fg.sum().clamp_min(1.0) if count is None else max(count, 1.0))
 
@@ -99,11 +101,23 @@ def mask_bce(opacity_in: Tensor, mask_in: Tensor, opacity_out: Tensor, count: fl
     return F.binary_cross_entropy(op, target, reduction="sum") / max(count, 1.0)
 
 
+def pixel_squared_error(estimate: Tensor, batch: PixelBatch) -> Tensor:
+    """(G * P,) each pixel's mean squared error of its clamped colours, 0 off the foreground."""
+    return ((estimate.detach().clamp(0, 1) - batch.target.clamp(0, 1)) ** 2).mean(-1) * batch.mask
+
+
 def squared_error(estimate: Tensor, batch: PixelBatch) -> tuple[float, float]:
-    """(sum over foreground pixels of the mean squared error of their clamped colours, pixel count)."""
-    fg = batch.mask
-    sq = (estimate.detach().clamp(0, 1) - batch.target.clamp(0, 1)) ** 2
-    return float((sq.mean(-1) * fg).sum()), float(fg.sum())
+    """(sum over foreground pixels of the mean squared error of their clamped colours, pixel count),
+    both weighted by the pixels' importance when an error map drew them."""
+    w = batch.pixel_weight
+    return float((pixel_squared_error(estimate, batch) * w).sum()), float(w.sum())
+
+
+def group_squared_error(estimate: Tensor, batch: PixelBatch) -> Tensor:
+    """(G,) each group's summed squared error over its foreground pixels (unweighted): what an
+    error map records of the group's centre cell."""
+    G = batch.weights.shape[0]
+    return pixel_squared_error(estimate, batch).reshape(G, -1).sum(-1)
 
 
 def flash_lit(bank: PixelBank, rays: Rays, ray_view: Tensor, n_lit: int, intensity: Tensor,
@@ -133,13 +147,42 @@ def probe_psnr(fields: SceneFields, bank: PixelBank, probe: PixelBatch, cfg: Tra
     """Train PSNR on the same pixels, rays and sample positions every time (no jitter): it changes
     only when the model does. The step's own PSNR also moves with which pixels a step drew: a few
     patches on an edge or a dark pip can take it down by 10 dB for a log line."""
-    rays, light = flash_lit(bank, probe.rays, probe.ray_view, probe.n_rays, intensity, capture)
+    return psnr_of(*squared_error(render_pixels(fields, bank, probe, cfg, stage, intensity, capture), probe))
+
+
+def render_pixels(fields: SceneFields, bank: PixelBank, batch: PixelBatch, cfg: TrainConfig, stage: int,
+                  intensity: Tensor, capture: CaptureTerms | None = None) -> Tensor:
+    """(G * P, 3) the batch's pixel estimates as ``stage`` renders them, without jitter or a graph."""
+    rays, light = flash_lit(bank, batch.rays, batch.ray_view, batch.n_rays, intensity, capture)
     vr = volume_render(fields, rays, light, sampler_of_stage(cfg, stage), train_geometry=False, jitter=False,
                        with_albedo=capture is not None)
-    rgb = probe.estimate(vr.result.rgb.detach())
+    rgb = batch.estimate(vr.result.rgb.detach())
     if capture is not None:
-        rgb = capture.apply(rgb, probe.estimate(vr.albedo.detach()), probe.view, probe.r2).detach()
-    return psnr_of(*squared_error(rgb, probe))
+        rgb = capture.apply(rgb, batch.estimate(vr.albedo.detach()), batch.view, batch.r2).detach()
+    return rgb.detach()
+
+
+ERROR_MAP_CHUNK = 4096
+"""Pixels rendered at a time for an error map's first measurement."""
+
+
+def measure_error_map(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler,
+                      intensity: Tensor, capture: CaptureTerms | None = None) -> ErrorMap:
+    """Stage 2's error map (:mod:`srvol.error_map`, share ``cfg.stage2_importance``): one centre ray
+    at every other in-mask pixel, each pixel given its measured neighbour's squared error, and each
+    cell the mean over its pixels of the error of the group (patch) centred there."""
+    error_map = ErrorMap(bank, cfg.stage2_importance)
+    measured = every_other(bank)
+    measured = measured[bank.mask[measured]]
+    pixel_se = torch.zeros(len(bank.colour), device=bank.colour.device)
+    with torch.no_grad():
+        for lo in range(0, len(measured), ERROR_MAP_CHUNK):
+            batch = bank.at_centres(measured[lo:lo + ERROR_MAP_CHUNK])
+            pixel_se[measured[lo:lo + ERROR_MAP_CHUNK]] = pixel_squared_error(
+                render_pixels(fields, bank, batch, cfg, 2, intensity, capture), batch)
+    pixel_se = pixel_se[nearest_even(bank)] * bank.mask
+    error_map.fill(patch_sums(bank, pixel_se, group_side(cfg, psf, 2)))
+    return error_map
 
 
 STAGE2_FIDELITY_DB = 0.25
@@ -206,15 +249,16 @@ def anchor_weight(progress: float, cfg: TrainConfig) -> float:
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
                  gen: torch.Generator, intensity: Tensor, progress: float = 1.0,
                  capture: CaptureTerms | None = None, shard: Shard = SINGLE,
-                 anchors: AnchorPoints | None = None) -> LossTerms:
+                 anchors: AnchorPoints | None = None, error_map: ErrorMap | None = None) -> LossTerms:
     """L1 on in-mask pixels (PSF estimates) + lambda_e eikonal + lambda_m mask BCE (stage 1 only).
     ``progress`` in [0, 1] (share of the run done) selects the PSF rays per pixel (psf_warmup).
     ``capture``: each ray is lit by its photo's flash, and the pixel estimates pass through the
     photo's exposure, vignetting and ambient term before they meet the photo. ``shard``: this
     rank's share of the step; each term is divided by its count over all ranks, so the ranks'
-    gradients sum to the whole step's (:mod:`srvol.distributed`)."""
+    gradients sum to the whole step's (:mod:`srvol.distributed`). ``error_map``: draw the in-mask
+    pixels where the error is, and write what this step measured back into it."""
     train_geo = stage == 1
-    whole = sample_pixels(bank, cfg, psf, stage, gen, progress)
+    whole = sample_pixels(bank, cfg, psf, stage, gen, progress, error_map)
     g_lo, g_hi = shard.span(whole.weights.shape[0])
     batch = whole.groups(g_lo, g_hi)
     rays, ray_view = batch.rays, batch.ray_view
@@ -248,7 +292,7 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     else:
         gradients = torch.zeros(0, 3)
     n_mask = batch.n_pixels + len(rays) - n_pix_rays if use_mask else 0
-    fg_count, eik_count, mask_count = shard.total(float(batch.mask.sum()), len(gradients), n_mask)
+    fg_count, eik_count, mask_count = shard.total(float(batch.pixel_weight.sum()), len(gradients), n_mask)
     photometric = photometric_l1(rgb, batch, fg_count)
     total = photometric
     if train_geo:
@@ -273,6 +317,8 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
                                  cfg.sampler.bound) / shard.world
             total = total + weight * anchor
     se, pixels = squared_error(rgb, batch)
+    if error_map is not None and whole.centre is not None:  # every rank writes the whole step's errors
+        error_map.update(whole.centre, shard.gather_span(group_squared_error(rgb, batch), g_lo, len(whole.centre)))
     # the logged figures speak of the whole step: sums over the ranks (each rank's share of a mean)
     se, pixels, ph, ek, mk = shard.total(se, pixels, float(photometric.detach()), float(eik.detach()),
                                          float(mask_loss.detach()))

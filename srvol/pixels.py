@@ -17,6 +17,7 @@ from torch import Tensor
 from srvol.capture.terms import radial2
 from srvol.config import TrainConfig, psf_rays_per_pixel, psf_sampler_of_stage, rays_per_step
 from srvol.data import Scene
+from srvol.error_map import ErrorMap
 from srvol.errors import SrvolError
 from srvol.psf import PsfSampler, SRMode
 from srvol.types import Rays
@@ -29,7 +30,10 @@ class PixelBatch:
     weights (G, P, R), rows summing to 1; target (G * P, 3) linear colour; mask (G * P,)
     foreground in {0, 1}; view (G * P,) the training view of each pixel and r2 (G * P,) its squared
     distance from the image centre over the squared half-diagonal (the capture terms' exposure and
-    vignetting); ray_view (G * R,) the view of each ray (its flash position).
+    vignetting); ray_view (G * R,) the view of each ray (its flash position). Drawn by an error map
+    (:mod:`srvol.error_map`): importance (G * P,) each pixel's weight in the step's means (uniform
+    probability over drawn probability) and centre (G,) each group's centre pixel, an index into
+    the bank's in-mask pixels; None for a uniform draw (every weight 1).
     """
 
     rays: Rays
@@ -39,6 +43,8 @@ class PixelBatch:
     view: Tensor
     r2: Tensor
     ray_view: Tensor
+    importance: Tensor | None = None
+    centre: Tensor | None = None
 
     @property
     def n_rays(self) -> int:
@@ -54,7 +60,14 @@ class PixelBatch:
         return PixelBatch(rays=self.rays[lo * R:hi * R], weights=self.weights[lo:hi],
                           target=self.target[lo * P:hi * P], mask=self.mask[lo * P:hi * P],
                           view=self.view[lo * P:hi * P], r2=self.r2[lo * P:hi * P],
-                          ray_view=self.ray_view[lo * R:hi * R])
+                          ray_view=self.ray_view[lo * R:hi * R],
+                          importance=None if self.importance is None else self.importance[lo * P:hi * P],
+                          centre=None if self.centre is None else self.centre[lo:hi])
+
+    @property
+    def pixel_weight(self) -> Tensor:
+        """(G * P,) each pixel's weight in the step's means: the foreground mask times its importance."""
+        return self.mask if self.importance is None else self.mask * self.importance
 
     def estimate(self, per_ray: Tensor) -> Tensor:
         """Per-ray values (G * R, C) -> per-pixel PSF estimates (G * P, C)."""
@@ -128,11 +141,16 @@ class PixelBank:
         return Rays(origins=o.reshape(-1, 3), directions=d.reshape(-1, 3))
 
     def sample(self, n: int, inside: bool, psf: PsfSampler, psf_samples: int, generator: torch.Generator,
-               antithetic: bool = False, near_share: float = 0.0) -> PixelBatch:
+               antithetic: bool = False, near_share: float = 0.0, error_map: ErrorMap | None = None) -> PixelBatch:
         """n pixels (in or out of the mask), each estimated by its own ``psf_samples`` rays (groups
         of one pixel). Out of the mask, ``near_share`` of them come from the silhouette's bounding
-        box (the gaps between legs, under a seat, in a handle: where the shape is carved)."""
-        if inside:
+        box (the gaps between legs, under a seat, in a handle: where the shape is carved). In the
+        mask, ``error_map`` draws them where the error is (with their importance weights)."""
+        centre = importance = None
+        if inside and error_map is not None:
+            centre, importance = error_map.draw(n, generator)
+            pick = self.inside[centre]
+        elif inside:
             pick = self._pick(self.inside, n, generator)
         elif near_share <= 0 or not len(self.outside_near):
             pick = self._pick(self.outside, n, generator)
@@ -147,20 +165,34 @@ class PixelBank:
         view = self.view[pick]
         return PixelBatch(rays=self.rays(view, uv), weights=weights, target=self.colour[pick],
                           mask=self.mask[pick].float(), view=view, r2=self.r2[pick],
-                          ray_view=view.repeat_interleave(S))
+                          ray_view=view.repeat_interleave(S), importance=importance, centre=centre)
+
+    def at_centres(self, rows: Tensor) -> PixelBatch:
+        """The bank's pixels ``rows``, each estimated by one ray through its centre (groups of one)."""
+        view = self.view[rows]
+        n = len(rows)
+        return PixelBatch(rays=self.rays(view, (self.ij[rows] + 0.5)[:, None, :]),
+                          weights=torch.ones(n, 1, 1, device=self.device), target=self.colour[rows],
+                          mask=self.mask[rows].float(), view=view, r2=self.r2[rows], ray_view=view)
 
     @staticmethod
     def _pick(pool: Tensor, n: int, generator: torch.Generator) -> Tensor:
         return pool[torch.randint(len(pool), (n,), generator=generator).to(pool.device)]
 
     def sample_patches(self, n: int, patch: int, cell: float, psf: PsfSampler,
-                       generator: torch.Generator) -> PixelBatch:
+                       generator: torch.Generator, error_map: ErrorMap | None = None) -> PixelBatch:
         """n patches of patch x patch LR pixels around random in-mask pixels, each estimated from
-        one shared, randomly shifted lattice of rays (spacing ``cell`` LR px) under the Gaussian PSF."""
+        one shared, randomly shifted lattice of rays (spacing ``cell`` LR px) under the Gaussian PSF.
+        ``error_map``: the centres are drawn where the error is (with their importance weights)."""
         if int(self.sizes.min()) < patch:
             raise SrvolError(f"--psf-sampler lattice: {patch}x{patch}-pixel patches need images at least "
                              f"{patch} pixels wide and high")
-        pick = self._pick(self.inside, n, generator)
+        centre = importance = None
+        if error_map is None:
+            pick = self._pick(self.inside, n, generator)
+        else:
+            centre, importance = error_map.draw(n, generator)
+            pick = self.inside[centre]
         view = self.view[pick]
         H, W = self.sizes[view, 0], self.sizes[view, 1]
         x0 = (self.ij[pick, 0] - patch // 2).clamp(min=0)
@@ -175,21 +207,37 @@ class PixelBank:
         px = (origin + pix_off - 0.5).round().long()  # (n, P, 2) integer (i, j)
         rows = self.view_start[view][:, None] + px[..., 1] * W[:, None] + px[..., 0]
         rows = rows.reshape(-1)
+        P = pix_off.shape[-2]
         return PixelBatch(rays=self.rays(view, uv), weights=weights, target=self.colour[rows],
                           mask=self.mask[rows].float(), view=self.view[rows], r2=self.r2[rows],
-                          ray_view=view.repeat_interleave(uv.shape[1]))
+                          ray_view=view.repeat_interleave(uv.shape[1]),
+                          importance=None if importance is None else importance.repeat_interleave(P),
+                          centre=centre)
 
 
 def sample_pixels(bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int, gen: torch.Generator,
-                  progress: float = 1.0) -> PixelBatch:
+                  progress: float = 1.0, error_map: ErrorMap | None = None) -> PixelBatch:
     """The in-mask pixels of one step of ``stage`` and their rays: per-pixel rays or shared lattice
-    patches, as the config's PSF sampler of that stage says (``progress`` in [0, 1]: psf_warmup)."""
+    patches, as the config's PSF sampler of that stage says (``progress`` in [0, 1]: psf_warmup),
+    drawn uniformly or, with ``error_map``, where the error is."""
     sampler = psf_sampler_of_stage(cfg, stage)
     if psf.mode == SRMode.GAUSSIAN and sampler == "lattice":
-        rays_per_patch = psf.lattice_size(cfg.patch, cfg.lattice_cell) ** 2
-        n = max(1, round(rays_per_step(cfg, stage) / rays_per_patch))
-        return bank.sample_patches(n, cfg.patch, cfg.lattice_cell, psf, gen)
+        n = patches_per_step(cfg, psf, stage)
+        return bank.sample_patches(n, cfg.patch, cfg.lattice_cell, psf, gen, error_map)
     if psf.mode == SRMode.GAUSSIAN and sampler == "centre":
-        return bank.sample(rays_per_step(cfg, stage), True, PsfSampler(SRMode.NONE, psf.psf), 1, gen)
+        return bank.sample(rays_per_step(cfg, stage), True, PsfSampler(SRMode.NONE, psf.psf), 1, gen,
+                           error_map=error_map)
     ns = psf_rays_per_pixel(cfg, stage, progress)
-    return bank.sample(rays_per_step(cfg, stage) // ns, True, psf, ns, gen, antithetic=sampler == "antithetic")
+    return bank.sample(rays_per_step(cfg, stage) // ns, True, psf, ns, gen, antithetic=sampler == "antithetic",
+                       error_map=error_map)
+
+
+def group_side(cfg: TrainConfig, psf: PsfSampler, stage: int) -> int:
+    """Side in LR pixels of a group of a step of ``stage``: a lattice patch's, or 1 (one pixel)."""
+    lattice = psf.mode == SRMode.GAUSSIAN and psf_sampler_of_stage(cfg, stage) == "lattice"
+    return cfg.patch if lattice else 1
+
+
+def patches_per_step(cfg: TrainConfig, psf: PsfSampler, stage: int) -> int:
+    """Lattice patches a step of ``stage`` draws (its rays over a patch's lattice rays)."""
+    return max(1, round(rays_per_step(cfg, stage) / psf.lattice_size(cfg.patch, cfg.lattice_cell) ** 2))

@@ -22,10 +22,11 @@ from srvol.checkpoint import TrainState, freeze_geometry, load_checkpoint, save_
 from srvol.config import TrainConfig, rays_per_step, sampler_of_stage
 from srvol.data import Scene
 from srvol.distributed import SINGLE, Shard
+from srvol.error_map import CELL, ErrorMap
 from srvol.errors import SrvolError
 from srvol.fields import BETA_INIT, SceneFields
-from srvol.losses import (choose_stage2_samples, compute_loss, faithful_stage2_sampler, probe_pixels, probe_psnr,
-                          psnr_of)
+from srvol.losses import (choose_stage2_samples, compute_loss, faithful_stage2_sampler, measure_error_map,
+                          probe_pixels, probe_psnr, psnr_of)
 from srvol.pixels import PixelBank
 from srvol.psf import PsfSampler, SRMode
 
@@ -179,6 +180,21 @@ def surface_anchors(scene: Scene, cfg: TrainConfig, stage: int, run_dir: Path, d
     return AnchorPoints.of(found, device) if len(found) else None
 
 
+def stage2_error_map(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, intensity,
+                     capture: CaptureTerms | None, shard: Shard, say) -> ErrorMap | None:
+    """Stage 2's error map (:mod:`srvol.error_map`) on the frozen geometry; None when
+    ``cfg.stage2_importance`` is 0. Every rank of a data-parallel run holds rank 0's map and writes
+    the whole step's errors into it, so all draw the same patches."""
+    if cfg.stage2_importance <= 0:
+        return None
+    t0 = time.time()
+    error_map = measure_error_map(fields, bank, cfg, psf, intensity, capture)
+    error_map.error = shard.broadcast(error_map.error)
+    say(f"stage 2 error map: {len(error_map)} cells of {CELL}x{CELL} LR pixels measured in {time.time() - t0:.1f} s; "
+        f"{cfg.stage2_importance:.0%} of the pixels drawn by it")
+    return error_map
+
+
 def samples_in_words(cfg: TrainConfig) -> str:
     """Stage 2's locating + gradient samples per ray, e.g. "16 + 4"."""
     s = sampler_of_stage(cfg, 2)
@@ -228,16 +244,17 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
         gen.set_state(ck.generator_state)
         say(f"resuming at step {state.step} (stage {state.stage}, {state.elapsed:.0f} s trained)")
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
-    t_anchors = time.time()
+    t_setup = time.time()  # the stereo's time and a resumed stage 2's map are the run's (stereo: 20-90 s)
     anchors = surface_anchors(scene, cfg, state.stage, run_dir, device, say)
-    anchor_seconds = time.time() - t_anchors  # the stereo's time is the run's (20-80 s on the suite's scenes)
     probe = probe_pixels(bank, cfg, psf) if main else None
+    error_map = None
     if state.stage == 2:  # the frozen geometry gives the same answer as when stage 2 began
         cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
+        error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
     budget, = shard.agree(cfg.time_budget if cfg.iters == 0 else 0.0)  # rank 0's: one budget binds all ranks
     stage2_at = int(cfg.iters * (1 - cfg.stage2_fraction)) if cfg.iters else None
     log_path = run_dir / "log.jsonl"
-    t_start = time.time() - state.elapsed - anchor_seconds
+    t_start = t_setup - state.elapsed
     bar = tqdm(total=cfg.iters or int(budget), disable=not (progress and main), unit="it" if cfg.iters else "s",
                desc="train", initial=state.step if cfg.iters else int(state.elapsed))
     recent: deque[tuple[float, float]] = deque(maxlen=cfg.log_every)  # (squared error, pixels) of the last steps
@@ -276,12 +293,13 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
             say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "
                 f"({rays_per_step(cfg, 2)} rays per step)")
+            error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         if cfg.coarse_to_fine > 0:  # without it every level stays open (the buffers' initial ones)
             fields.set_coarse_to_fine(progress_frac / cfg.coarse_to_fine if state.stage == 1 else 1.0)
         intensity = light_intensity()
         terms = compute_loss(fields, bank, cfg, psf, state.stage, gen, intensity, progress_frac, capture, shard,
-                             anchors)
+                             anchors, error_map)
         if not shard.all_true(bool(torch.isfinite(terms.total))):
             state.rollbacks += 1
             if state.rollbacks > 5:

@@ -55,6 +55,10 @@ def add_parser(sub) -> None:
     p.add_argument("--geometry-lr-tail", type=float, metavar="F",
                    help="stage 1: the SDF's learning rates fall by a further factor F, 0.001..1, over the second "
                         "half of stage 1, so the surface settles (auto 0.1; fast, paper 1 = off)")
+    p.add_argument("--stage2-importance", type=float, metavar="S",
+                   help="stage 2: draw this share, 0..0.9, of the pixels in proportion to an error map of the "
+                        "training views (the flash highlights left to fit), the rest uniformly, each weighted so "
+                        "the loss means the same (0 = uniform, the paper; see README)")
     p.add_argument("--lattice-cell", type=float,
                    help="lattice sampler: spacing of the shared rays in LR pixels, 0.05..1 (default 0.5; "
                         "1 / sr factor puts one ray on each HR pixel)")
@@ -223,6 +227,8 @@ def build_config(scene, args):
         if not (math.isfinite(args.geometry_lr_tail) and 0.001 <= args.geometry_lr_tail <= 1.0):
             raise SrvolError(f"--geometry-lr-tail {args.geometry_lr_tail}: must be between 0.001 and 1")
         changes["geometry_lr_tail"] = args.geometry_lr_tail
+    if args.stage2_importance is not None:
+        changes["stage2_importance"] = _share(args.stage2_importance, "--stage2-importance", 0.9)
     if args.lattice_cell is not None:
         if not (math.isfinite(args.lattice_cell) and 0.05 <= args.lattice_cell <= 1.0):
             raise SrvolError(f"--lattice-cell {args.lattice_cell}: must be between 0.05 and 1 LR pixel")
