@@ -11,7 +11,9 @@ prints:
   each share in SHARES (weighted as training weighs them): the window PSNR's median, 1st and 99th
   percentiles and its largest distance from the whole set's PSNR.
 
-Prints only (suite_tuning.md quotes it). The windows are drawn from the finished model's errors,
+``--chart OUT.png RUN ...`` draws the runs' logged stage-2 PSNR (per 25-step window, and the
+probe's) against the step instead (``suite_stage2_swing.png``). Otherwise it prints only
+(suite_tuning.md quotes it). The windows are drawn from the finished model's errors,
 not trained: they measure the estimator, and training's own log (``bench_suite.stage2_swing_db``)
 measures the runs.
 """
@@ -94,14 +96,58 @@ def bench_run(run: Path) -> None:
         print(f"  {name:24s} {med:7.2f} {p1:7.2f} {p99:7.2f} {worst:19.2f}")
 
 
+def stage2_log(run: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(steps since stage 2 began, logged PSNR, probe PSNR) of a run's stage-2 log lines."""
+    import json
+
+    lines = [json.loads(x) for x in (run / "log.jsonl").read_text().splitlines()]
+    s2 = [r for r in lines if r.get("stage") == 2]
+    steps = np.array([r["step"] for r in s2], float)
+    return steps - (steps[0] if len(steps) else 0), np.array([r["psnr"] for r in s2]), \
+        np.array([r.get("probe_psnr", np.nan) for r in s2])
+
+
+def chart(out: Path, runs: list[Path]) -> None:
+    """The runs' stage-2 logged and probe PSNR against the step, one panel per run, written to ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from srvol.atomic import atomic_path
+
+    fig, axes = plt.subplots(1, len(runs), figsize=(4.2 * len(runs), 3.2), squeeze=False, sharey=True)
+    for ax, run in zip(axes[0], runs):
+        steps, psnr, probe = stage2_log(run)
+        ax.plot(steps, psnr, lw=1, label="logged (25-step window)")
+        ax.plot(steps, probe, lw=1, label="probe (fixed pixels)")
+        ax.set_title(run.name, fontsize=9)
+        ax.set_xlabel("stage-2 step")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("train PSNR (dB)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    tmp = atomic_path(out)
+    fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+    tmp.replace(out)
+    print(f"wrote {out}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", type=Path, help="finished run folders (srvol train --out)")
+    ap.add_argument("--chart", type=Path, metavar="OUT.png",
+                    help="draw the runs' stage-2 log (logged and probe PSNR) to this PNG instead")
     args = ap.parse_args(argv)
     for run in args.runs:
         if not (run / "model.pt").is_file():
             print(f"error: {run}: not a finished run (no model.pt)", file=sys.stderr)
             return 2
+    if args.chart:
+        chart(args.chart, args.runs)
+        return 0
+    for run in args.runs:
         bench_run(run)
     return 0
 
