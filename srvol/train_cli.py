@@ -58,7 +58,7 @@ def add_parser(sub) -> None:
     p.add_argument("--stage2-importance", type=float, metavar="S",
                    help="stage 2: draw this share, 0..0.9, of the pixels in proportion to an error map of the "
                         "training views (the flash highlights left to fit), the rest uniformly, each weighted so "
-                        "the loss means the same (0 = uniform, the paper; see README)")
+                        "the loss means the same (auto 0.5; fast, paper 0 = uniform, the paper's draw; see README)")
     p.add_argument("--lattice-cell", type=float,
                    help="lattice sampler: spacing of the shared rays in LR pixels, 0.05..1 (default 0.5; "
                         "1 / sr factor puts one ray on each HR pixel)")
