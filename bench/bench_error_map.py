@@ -55,7 +55,7 @@ def bench_run(run: Path) -> None:
     from srvol.config import read_run_config
     from srvol.data import load_scene
     from srvol.error_map import ErrorMap, patch_sums
-    from srvol.losses import ERROR_MAP_CHUNK, measure_error_map, pixel_squared_error, render_pixels
+    from srvol.losses import centre_squared_errors, measure_error_map
     from srvol.pixels import PixelBank, patches_per_step
     from srvol.psf import PsfSampler, SRMode
 
@@ -65,12 +65,7 @@ def bench_run(run: Path) -> None:
     bank = PixelBank(scene, torch.device("cpu"))
     psf = PsfSampler(SRMode(cfg.sr), scene.info.psf)
     intensity = torch.tensor(info.light_intensity, dtype=torch.float32)
-    pixel_se = torch.zeros(len(bank.colour))
-    with torch.no_grad():
-        for lo in range(0, len(bank.inside), ERROR_MAP_CHUNK):
-            rows = bank.inside[lo:lo + ERROR_MAP_CHUNK]
-            batch = bank.at_centres(rows)
-            pixel_se[rows] = pixel_squared_error(render_pixels(fields, bank, batch, cfg, 2, intensity), batch)
+    pixel_se = centre_squared_errors(fields, bank, bank.inside, cfg, intensity)
     error = patch_sums(bank, pixel_se, PATCH).numpy()
     count = patch_sums(bank, bank.mask.float(), PATCH).numpy()
     order = np.sort(error)[::-1]

@@ -4,7 +4,7 @@ Once the geometry is frozen, a few flash highlights hold most of what is left to
 scene glossy's finished model, the 4x4-pixel patches around 1 % of the in-mask pixels hold 89 % of
 the squared error and 0.1 % of them hold 54 %. A step draws 5-7 patches uniformly, so it meets one
 of those now and then, and when it does the step's loss and gradient jump: the logged PSNR of a
-25-step window swung by 14 dB, and its median sat 7 dB above the error of the whole image set,
+25-step window swung by 14 dB, and its median sat 6 dB above the PSNR of the whole image set,
 because most windows miss the highlights altogether.
 
 Here the patch centres are drawn with probability ``(1 - share) / N + share * e_c / sum(e)``: a
@@ -33,10 +33,11 @@ measurement in (rate 1) left glossy's and shiny's logged 25-step PSNR within 5.1
 running median; the groups centred in one cell differ, and one low draw hid the rest of the cell."""
 
 STAGE2_IMPORTANCE = 0.5
-"""auto's share of stage 2's draw that follows the map. On glossy's finished model (centre-ray
-errors as the map, 400 windows of 25 steps of 6 patches each) a 25-step window's PSNR spans
-29.4-32.5 dB (1st-99th percentile, the whole set's 30.9) at 0.5 and 0.8 alike, 22.1-41.9 drawn
-uniformly; at 0.95 the weights of the rare uniform draws widen it again (27.3-33.0)."""
+"""auto's share of stage 2's draw that follows the map. On glossy's finished auto run
+(``python -m bench.bench_error_map RUN``: 400 windows of 25 steps of 7 patches, drawn from the
+model's own errors) a window's PSNR spans 29.30-32.77 dB at 0.5 and 29.00-32.63 at 0.8 (1st-99th
+percentile; the whole set's 30.94), 22.83-41.47 drawn uniformly. A larger share buys nothing and
+raises the bound on the uniform draws' weights, 1 / (1 - share)."""
 
 
 class ErrorMap:
@@ -111,13 +112,11 @@ def nearest_even(bank) -> Tensor:
 
 def patch_sums(bank, pixel_values: Tensor, patch: int) -> Tensor:
     """(N,) for each in-mask pixel the sum of ``pixel_values`` (one per bank row, 0 off the mask)
-    over the ``patch`` x ``patch`` patch a stage-2 draw centred there covers (:meth:`sample_patches`)."""
-    rows = bank.inside
-    v = bank.view[rows]
-    H, W = bank.sizes[v, 0], bank.sizes[v, 1]
-    x0 = torch.minimum((bank.ij[rows, 0] - patch // 2).clamp(min=0), (W - patch).float()).long()
-    y0 = torch.minimum((bank.ij[rows, 1] - patch // 2).clamp(min=0), (H - patch).float()).long()
-    out = torch.zeros(len(rows), dtype=pixel_values.dtype, device=pixel_values.device)
+    over the ``patch`` x ``patch`` patch a stage-2 draw centred there covers (:meth:`srvol.pixels.PixelBank.patch_origin`)."""
+    v = bank.view[bank.inside]
+    W = bank.sizes[v, 1]
+    x0, y0 = bank.patch_origin(bank.inside, patch).long().unbind(-1)
+    out = torch.zeros(len(v), dtype=pixel_values.dtype, device=pixel_values.device)
     for dx in range(patch):
         for dy in range(patch):
             out += pixel_values[bank.view_start[v] + (y0 + dy) * W + x0 + dx]

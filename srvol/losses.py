@@ -166,6 +166,19 @@ ERROR_MAP_CHUNK = 4096
 """Pixels rendered at a time for an error map's first measurement."""
 
 
+def centre_squared_errors(fields: SceneFields, bank: PixelBank, rows: Tensor, cfg: TrainConfig,
+                          intensity: Tensor, capture: CaptureTerms | None = None) -> Tensor:
+    """(all bank rows,) the squared error of one stage-2 ray through the centre of each of the
+    bank's pixels ``rows`` (rendered ERROR_MAP_CHUNK at a time), 0 at the other rows."""
+    pixel_se = torch.zeros(len(bank.colour), device=bank.colour.device)
+    with torch.no_grad():
+        for lo in range(0, len(rows), ERROR_MAP_CHUNK):
+            batch = bank.at_centres(rows[lo:lo + ERROR_MAP_CHUNK])
+            pixel_se[rows[lo:lo + ERROR_MAP_CHUNK]] = pixel_squared_error(
+                render_pixels(fields, bank, batch, cfg, 2, intensity, capture), batch)
+    return pixel_se
+
+
 def measure_error_map(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler,
                       intensity: Tensor, capture: CaptureTerms | None = None) -> ErrorMap:
     """Stage 2's error map (:mod:`srvol.error_map`, share ``cfg.stage2_importance``): one centre ray
@@ -174,12 +187,7 @@ def measure_error_map(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, ps
     error_map = ErrorMap(bank, cfg.stage2_importance)
     measured = every_other(bank)
     measured = measured[bank.mask[measured]]
-    pixel_se = torch.zeros(len(bank.colour), device=bank.colour.device)
-    with torch.no_grad():
-        for lo in range(0, len(measured), ERROR_MAP_CHUNK):
-            batch = bank.at_centres(measured[lo:lo + ERROR_MAP_CHUNK])
-            pixel_se[measured[lo:lo + ERROR_MAP_CHUNK]] = pixel_squared_error(
-                render_pixels(fields, bank, batch, cfg, 2, intensity, capture), batch)
+    pixel_se = centre_squared_errors(fields, bank, measured, cfg, intensity, capture)
     pixel_se = pixel_se[nearest_even(bank)] * bank.mask
     error_map.fill(patch_sums(bank, pixel_se, group_side(cfg, psf, 2)))
     return error_map

@@ -147,11 +147,8 @@ class PixelBank:
         box (the gaps between legs, under a seat, in a handle: where the shape is carved). In the
         mask, ``error_map`` draws them where the error is (with their importance weights)."""
         centre = importance = None
-        if inside and error_map is not None:
-            centre, importance = error_map.draw(n, generator)
-            pick = self.inside[centre]
-        elif inside:
-            pick = self._pick(self.inside, n, generator)
+        if inside:
+            pick, centre, importance = self._pick_inside(n, generator, error_map)
         elif near_share <= 0 or not len(self.outside_near):
             pick = self._pick(self.outside, n, generator)
         else:
@@ -179,6 +176,24 @@ class PixelBank:
     def _pick(pool: Tensor, n: int, generator: torch.Generator) -> Tensor:
         return pool[torch.randint(len(pool), (n,), generator=generator).to(pool.device)]
 
+    def _pick_inside(self, n: int, generator: torch.Generator,
+                     error_map: ErrorMap | None) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """n in-mask rows, drawn uniformly or by ``error_map``; with the map, each one's index into
+        ``inside`` and its importance weight (None, None for a uniform draw)."""
+        if error_map is None:
+            return self._pick(self.inside, n, generator), None, None
+        centre, importance = error_map.draw(n, generator)
+        return self.inside[centre], centre, importance
+
+    def patch_origin(self, pick: Tensor, patch: int) -> Tensor:
+        """(n, 2) the (i, j) top-left pixel of the ``patch`` x ``patch`` patch a draw centred at rows
+        ``pick`` covers: ``patch // 2`` before the centre, moved inside its view at the borders."""
+        view = self.view[pick]
+        H, W = self.sizes[view, 0], self.sizes[view, 1]
+        x0 = torch.minimum((self.ij[pick, 0] - patch // 2).clamp(min=0), (W - patch).float())
+        y0 = torch.minimum((self.ij[pick, 1] - patch // 2).clamp(min=0), (H - patch).float())
+        return torch.stack([x0, y0], -1)
+
     def sample_patches(self, n: int, patch: int, cell: float, psf: PsfSampler,
                        generator: torch.Generator, error_map: ErrorMap | None = None) -> PixelBatch:
         """n patches of patch x patch LR pixels around random in-mask pixels, each estimated from
@@ -187,21 +202,12 @@ class PixelBank:
         if int(self.sizes.min()) < patch:
             raise SrvolError(f"--psf-sampler lattice: {patch}x{patch}-pixel patches need images at least "
                              f"{patch} pixels wide and high")
-        centre = importance = None
-        if error_map is None:
-            pick = self._pick(self.inside, n, generator)
-        else:
-            centre, importance = error_map.draw(n, generator)
-            pick = self.inside[centre]
+        pick, centre, importance = self._pick_inside(n, generator, error_map)
         view = self.view[pick]
-        H, W = self.sizes[view, 0], self.sizes[view, 1]
-        x0 = (self.ij[pick, 0] - patch // 2).clamp(min=0)
-        y0 = (self.ij[pick, 1] - patch // 2).clamp(min=0)
-        x0 = torch.minimum(x0, (W - patch).float())
-        y0 = torch.minimum(y0, (H - patch).float())
+        W = self.sizes[view, 1]
         shift = torch.rand(n, 2, generator=generator).to(self.device)
         pix_off, ray_off, weights = psf.lattice(patch, cell, shift)
-        origin = torch.stack([x0, y0], -1)[:, None, :]
+        origin = self.patch_origin(pick, patch)[:, None, :]
         uv = origin + ray_off  # (n, R, 2) continuous LR coordinates
         # pixels of each patch -> rows of the bank (views are stored one after another, row-major)
         px = (origin + pix_off - 0.5).round().long()  # (n, P, 2) integer (i, j)
