@@ -143,12 +143,25 @@ def _add_eval(sub) -> None:
     p.add_argument("--json", type=Path, help="write the metrics here (default RUN/metrics.json)")
     p.add_argument("--views", help="comma-separated test view names (default: all test views)")
     p.add_argument("--no-relit", action="store_true", help="skip the moved-light metrics")
+    p.add_argument("--compile", choices=("auto", "on", "off"), default="auto",
+                   help="render through torch.compile'd field queries (the same maths, faster after ~30 s of "
+                        f"compiling, cached on disk); auto: on when the test views hold >= {EVAL_COMPILE_MIN_PIXELS:,} "
+                        "HR pixels (default auto)")
     p.add_argument("--gt", type=Path,
                    help="the GT folder of a synthetic capture (srvol synth --capture): align the imported scene "
                         "to it by the photos' camera centres, report rotation errors, score the GT's held-out "
                         "views, normals and moved lights in the GT frame after one per-channel gain, and the "
                         "Chamfer distance of the level set")
     p.set_defaults(func=_run_eval)
+
+
+EVAL_COMPILE_MIN_PIXELS = 1_000_000
+"""Below this an evaluation takes about as long as compiling its queries the first time."""
+
+
+def _test_hr_pixels(scene) -> int:
+    """HR pixels of the scene's test views (what an evaluation renders, moved lights aside)."""
+    return sum(cam.width * cam.height for cam in (scene.hr_camera(s) for s in scene.test))
 
 
 def _run_eval(args) -> int:
@@ -165,6 +178,8 @@ def _run_eval(args) -> int:
         raise SrvolError("the run does not record its scene: pass --scene")
     scene = load_scene(scene_dir)
     cfg = read_run_config(args.run).train
+    if args.compile == "on" or (args.compile == "auto" and _test_hr_pixels(scene) >= EVAL_COMPILE_MIN_PIXELS):
+        fields.compile_queries()
     if args.gt is not None:
         return _run_eval_capture(args, fields, info, scene, cfg)
     relit_fn = None
@@ -234,7 +249,8 @@ def _neural_relit_fn(fields):
 
 BENCHES = {"all": "bench.run_all", "synth": "bench.bench_synth", "train": "bench.bench_train",
            "stage2": "bench.bench_stage2", "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study",
-           "suite": "bench.bench_suite", "view": "bench.bench_view", "batch": "bench.bench_batch"}
+           "suite": "bench.bench_suite", "view": "bench.bench_view", "batch": "bench.bench_batch",
+           "compile": "bench.bench_compile"}
 
 
 def _add_bench(sub) -> None:
@@ -246,6 +262,7 @@ def _add_bench(sub) -> None:
     p.add_argument("which", nargs="?", default="all", choices=tuple(BENCHES),
                    help="synth, train (SR vs noSR vs Vol-SR, paper), stage2 (stage-2 PSF samplers on the train runs), export, relight, "
                         "view (srvol view's render latency), batch (srvol batch against the same steps by hand), "
+                        "compile (steps per second with and without the compiled field queries), "
                         "study (N_s sweep, "
                         "stability, capacity), suite (every built-in scene, tuning and report sets; hours, "
                         "resumable; not part of 'all') or all (default)")

@@ -113,6 +113,9 @@ class TrainConfig:
     """Save the fields this many times, evenly over training, in RUN/snapshots/ (for quality-vs-time charts)."""
     seed: int = 0
     device: str = "cpu"
+    compile: bool = False
+    """Run the fields' queries through ``torch.compile`` (:mod:`srvol.compiled`): the same maths in
+    fewer, fused kernels; eager where compiling fails."""
     reasons: tuple[str, ...] = ()
 
     def to_json(self) -> dict:

@@ -108,6 +108,7 @@ class SceneFields(nn.Module):
     def __init__(self, cfg: FieldConfig, learn_intensity: bool, intensity_init: float = 10.0):
         super().__init__()
         self.cfg = cfg
+        self._compiled = None
         self.log_beta = nn.Parameter(torch.tensor(math.log(BETA_INIT)))
         self.log_intensity = nn.Parameter(torch.full((3,), math.log(intensity_init)), requires_grad=learn_intensity)
         if cfg.kind == "paper":
@@ -151,16 +152,33 @@ class SceneFields(nn.Module):
 
     def sdf(self, x: Tensor) -> Tensor:
         """(N, 3) -> (N,) signed distance, negative inside."""
+        if self._compiled is not None:
+            return self._compiled.sdf(x)
         return self.sdf_net(x)
 
     def sdf_and_gradient(self, x: Tensor, create_graph: bool) -> tuple[Tensor, Tensor]:
-        """SDF and its spatial gradient (not normalised). ``create_graph`` for losses on the gradient."""
+        """SDF and its spatial gradient (not normalised). ``create_graph`` for losses on the gradient.
+
+        The grid SDF writes its gradient out (:meth:`GridSDF.value_and_gradient`:
+        the same values, one backward for a loss on them, and compiled when the queries are);
+        the others take it from autograd (a loss on it: double backward)."""
+        if isinstance(self.sdf_net, GridSDF) and self.sdf_net.explicit_gradient:
+            with torch.set_grad_enabled(create_graph or torch.is_grad_enabled()):
+                d, g = (self.sdf_net.value_and_gradient if self._compiled is None else self._compiled.sdf_grad)(x)
+            return (d, g) if create_graph else (d, g.detach())
         with torch.enable_grad():
             if not x.requires_grad:
                 x = x.detach().requires_grad_(True)
-            d = self.sdf_net(x)
+            d = self.sdf_net(x) if create_graph or self._compiled is None else self._compiled.sdf(x)
             (g,) = torch.autograd.grad(d, x, torch.ones_like(d), create_graph=create_graph)
         return d, g
+
+    def compile_queries(self) -> None:
+        """Run the SDF (first derivatives) and material queries through ``torch.compile``
+        (:mod:`srvol.compiled`); the eikonal path's double backward stays eager."""
+        from srvol.compiled import CompiledQueries
+        grad = self.sdf_net.value_and_gradient if isinstance(self.sdf_net, GridSDF) and self.sdf_net.explicit_gradient else None
+        self._compiled = CompiledQueries(self.sdf_net, grad, self._material_logits)
 
     @torch.no_grad()
     def set_coarse_to_fine(self, share: float) -> None:
@@ -174,15 +192,16 @@ class SceneFields(nn.Module):
         sdf.copy_(level_window(len(sdf), 1, share))
 
     # -- material
+    def _material_logits(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        if self.cfg.kind == "paper":
+            return (self.albedo_net(positional_encoding(x, self.cfg.paper_albedo_freqs)),
+                    self.spec_net(positional_encoding(x, self.cfg.paper_spec_freqs)))
+        feats = self.mat_grid(x)
+        return self.albedo_net(feats), self.spec_net(feats[:, : self.spec_dim])
+
     def material(self, x: Tensor) -> SurfaceMaterial:
         """Decoded BRDF parameters: albedo = sigmoid, F0 = sigmoid, alpha in [ALPHA_MIN, 1]."""
-        if self.cfg.kind == "paper":
-            a = self.albedo_net(positional_encoding(x, self.cfg.paper_albedo_freqs))
-            s = self.spec_net(positional_encoding(x, self.cfg.paper_spec_freqs))
-        else:
-            feats = self.mat_grid(x)
-            a = self.albedo_net(feats)
-            s = self.spec_net(feats[:, : self.spec_dim])
+        a, s = (self._material_logits if self._compiled is None else self._compiled.material)(x)
         albedo = torch.sigmoid(a)
         specular = torch.sigmoid(s[:, :1])
         alpha = ALPHA_MIN + (1.0 - ALPHA_MIN) * torch.sigmoid(s[:, 1:2] - 1.1)
@@ -192,6 +211,16 @@ class SceneFields(nn.Module):
         """(albedo MLP params, specular MLP params, feature tables)."""
         tables = [self.mat_grid.table] if self.cfg.kind == "grid" else []
         return list(self.albedo_net.parameters()), list(self.spec_net.parameters()), tables
+
+
+def _activation_slope(act: nn.Module, z: Tensor) -> Tensor:
+    """d act(z) / dz of a head's activation (the explicit normal path of :class:`GridSDF`)."""
+    if isinstance(act, SharpGELU):
+        y = 100.0 * z
+        return 0.5 * (1.0 + torch.erf(y * 0.7071067811865476)) + y * torch.exp(-0.5 * y * y) * 0.3989422804014327
+    if isinstance(act, nn.Softplus):
+        return torch.sigmoid(act.beta * z)
+    raise ValueError(f"no slope for {type(act).__name__}")
 
 
 class SharpGELU(nn.Module):
@@ -243,6 +272,27 @@ class GridSDF(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         base = x.norm(dim=-1) - self.r0
         return base + self.head(torch.cat([x, self.grids(x)], dim=-1))[:, 0]
+
+    explicit_gradient = True
+    """:meth:`value_and_gradient` gives the normal (``bench_compile`` turns it off to time autograd's)."""
+
+    def value_and_gradient(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """d(x) (N,) and its x-gradient (N, 3) by forward-mode differentiation written out: the
+        grids' Jacobian, then the head's, layer by layer. A loss on the gradient then needs one
+        backward, not autograd's double backward (and the whole query compiles)."""
+        r = x.norm(dim=-1, keepdim=True)
+        feats, jac = self.grids.with_jacobian(x)
+        h = torch.cat([x, feats], dim=-1)
+        eye = torch.eye(3, dtype=x.dtype, device=x.device).expand(x.shape[0], 3, 3)
+        t = torch.cat([eye, jac], dim=-1)  # (N, 3, D): d h / d x
+        for layer in self.head:
+            if isinstance(layer, nn.Linear):
+                h = layer(h)
+                t = t @ layer.weight.t()
+            else:
+                t = t * _activation_slope(layer, h)[:, None, :]
+                h = layer(h)
+        return r[:, 0] - self.r0 + h[:, 0], x / r.clamp_min(1e-12) + t[:, :, 0]
 
 
 class PaperSDF(nn.Module):

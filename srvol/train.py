@@ -223,6 +223,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     gen = torch.Generator().manual_seed(cfg.seed)
     learn_I = scene.info.light_intensity is None
     fields = SceneFields(cfg.fields, learn_intensity=learn_I).to(device)
+    if cfg.compile:
+        fields.compile_queries()
     fixed_I = None if learn_I else torch.tensor(scene.info.light_intensity, dtype=torch.float32, device=device)
 
     def light_intensity() -> torch.Tensor:

@@ -118,6 +118,10 @@ def add_parser(sub) -> None:
     p.add_argument("--iters", type=int, help="total iterations of both stages instead of a time budget")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="device (default cpu)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--compile", choices=("auto", "on", "off"), default="auto",
+                   help="run the fields' queries through torch.compile: the same maths, ~1.5x the steps per second "
+                        "on a CPU after ~30 s of compiling (cached on disk for later runs); auto: on for a run of "
+                        f"at least {COMPILE_MIN_SECONDS:.0f} s or {COMPILE_MIN_ITERS} iterations (default auto)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument("--force", action="store_true", help="replace an existing run folder")
     p.add_argument("--checkpoint-every", type=int, help="iterations between checkpoints (default 200)")
@@ -269,6 +273,7 @@ def build_config(scene, args):
         if cfg.fields.kind != "grid":
             raise SrvolError(f"--sdf-interpolation applies to the grid presets (fast, auto), not {cfg.preset}")
         changes["fields"] = replace(cfg.fields, sdf_interpolation=args.sdf_interpolation)
+    changes["compile"] = _compile(args, changes.get("iters", cfg.iters))
     capture = _capture_terms(scene, args, cfg.capture)
     if capture != cfg.capture:
         changes["capture"] = capture
@@ -341,7 +346,8 @@ def _run_train(args, shard=None) -> int:
     say = print if shard.is_main else (lambda *_: None)
     say(f"preset {cfg.preset}, sr {cfg.sr}, {describe_psf_rays(cfg, scene.info.psf)}, "
         f"{describe_ray_samples(cfg)}, "
-        f"{n_params / 1e6:.2f} M parameters" + (f", {shard.world} data-parallel ranks" if shard.world > 1 else ""))
+        f"{n_params / 1e6:.2f} M parameters" + (", compiled queries" if cfg.compile else "")
+        + (f", {shard.world} data-parallel ranks" if shard.world > 1 else ""))
     say(f"  {cfg.fields.parameter_summary()}")
     for r in cfg.reasons:
         say(f"  - {r}")
@@ -363,6 +369,18 @@ def _run_train(args, shard=None) -> int:
     print(f"trained {summary.iterations} iterations in {summary.train_seconds:.0f} s "
           f"(train PSNR {summary.final_psnr:.2f} dB) -> {run}")
     return 0
+
+
+COMPILE_MIN_SECONDS = 120.0
+COMPILE_MIN_ITERS = 1000
+"""Below these a run would spend a large share of itself compiling (~30 s on first use)."""
+
+
+def _compile(args: argparse.Namespace, iters: int) -> bool:
+    """--compile: on, off, or (auto) on for runs long enough to repay the compiling."""
+    if args.compile != "auto":
+        return args.compile == "on"
+    return iters >= COMPILE_MIN_ITERS if iters else args.time_budget >= COMPILE_MIN_SECONDS
 
 
 def _peak_rss_gib() -> float | None:
