@@ -49,8 +49,7 @@ def measure_arm(scene_dir: Path, arm: str, steps: int) -> dict:
     from srvol.types import PointLight
 
     torch.set_num_threads(1)
-    if arm == "autograd":
-        GridSDF.explicit_gradient = False  # the normal path before it was written out
+    GridSDF.explicit_gradient = {"autograd": False, "written-out": True}.get(arm)  # compiled: the default
     scene = load_scene(scene_dir)
     cfg = auto_config(scene, "gaussian", 600)
     torch.manual_seed(0)

@@ -159,13 +159,14 @@ class SceneFields(nn.Module):
     def sdf_and_gradient(self, x: Tensor, create_graph: bool) -> tuple[Tensor, Tensor]:
         """SDF and its spatial gradient (not normalised). ``create_graph`` for losses on the gradient.
 
-        The grid SDF writes its gradient out (:meth:`GridSDF.value_and_gradient`:
-        the same values, one backward for a loss on them, and compiled when the queries are);
-        the others take it from autograd (a loss on it: double backward)."""
-        if isinstance(self.sdf_net, GridSDF) and self.sdf_net.explicit_gradient:
-            with torch.set_grad_enabled(create_graph or torch.is_grad_enabled()):
-                d, g = (self.sdf_net.value_and_gradient if self._compiled is None else self._compiled.sdf_grad)(x)
-            return (d, g) if create_graph else (d, g.detach())
+        With compiled queries the grid SDF writes its gradient out (:meth:`GridSDF.value_and_gradient`:
+        the same values, one backward for a loss on them, so it compiles); otherwise autograd gives
+        it (a loss on it: double backward)."""
+        if isinstance(self.sdf_net, GridSDF) and self.sdf_net.writes_out_gradient(self._compiled is not None):
+            # without create_graph nothing is differentiated through either value: no graph (and one
+            # compiled variant fewer: the no-gradient one serves evaluation, probes and stage 2)
+            with torch.set_grad_enabled(create_graph):
+                return (self.sdf_net.value_and_gradient if self._compiled is None else self._compiled.sdf_grad)(x)
         with torch.enable_grad():
             if not x.requires_grad:
                 x = x.detach().requires_grad_(True)
@@ -177,7 +178,8 @@ class SceneFields(nn.Module):
         """Run the SDF (first derivatives) and material queries through ``torch.compile``
         (:mod:`srvol.compiled`); the eikonal path's double backward stays eager."""
         from srvol.compiled import CompiledQueries
-        grad = self.sdf_net.value_and_gradient if isinstance(self.sdf_net, GridSDF) and self.sdf_net.explicit_gradient else None
+        grad = (self.sdf_net.value_and_gradient if isinstance(self.sdf_net, GridSDF) and self.sdf_net.writes_out_gradient(True)
+                else None)
         self._compiled = CompiledQueries(self.sdf_net, grad, self._material_logits)
 
     @torch.no_grad()
@@ -273,8 +275,13 @@ class GridSDF(nn.Module):
         base = x.norm(dim=-1) - self.r0
         return base + self.head(torch.cat([x, self.grids(x)], dim=-1))[:, 0]
 
-    explicit_gradient = True
-    """:meth:`value_and_gradient` gives the normal (``bench_compile`` turns it off to time autograd's)."""
+    explicit_gradient: bool | None = None
+    """Whether :meth:`value_and_gradient` gives the normal: None (default) where the queries are
+    compiled -- eagerly, autograd's double backward is ~5 % faster (``srvol bench compile``) --
+    True always, False never (``bench_compile`` sets both, to time each path)."""
+
+    def writes_out_gradient(self, compiled: bool) -> bool:
+        return compiled if self.explicit_gradient is None else self.explicit_gradient
 
     def value_and_gradient(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """d(x) (N,) and its x-gradient (N, 3) by forward-mode differentiation written out: the

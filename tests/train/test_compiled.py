@@ -40,7 +40,7 @@ def test_the_written_out_gradient_is_autograds_and_so_are_the_eikonal_terms_para
     fields = _busy_fields(activation, interpolation)
     x = torch.rand(3000, 3, generator=torch.Generator().manual_seed(1)) * 1.8 - 0.9
     d_ref, g_ref = _autograd_normal_path(fields, x)
-    d, g = fields.sdf_and_gradient(x, create_graph=True)  # the written-out path
+    d, g = fields.sdf_net.value_and_gradient(x)  # the written-out path
     assert torch.allclose(d, d_ref, atol=1e-6)
     assert torch.allclose(g, g_ref, atol=1e-5 * float(g_ref.abs().max()))
     assert float(g_ref.norm(dim=-1).std()) > 0.3  # a busy field: the head and grids carry the gradient
@@ -57,8 +57,10 @@ def test_without_create_graph_the_gradient_is_detached_and_the_same():
     fields = _busy_fields("gelu")
     x = torch.rand(200, 3, generator=torch.Generator().manual_seed(3)) * 1.8 - 0.9
     _, g_ref = _autograd_normal_path(fields, x)
-    with torch.no_grad():
-        _, g = fields.sdf_and_gradient(x, create_graph=False)
+    assert not fields.sdf_net.writes_out_gradient(compiled=False)  # eagerly, autograd's (faster there)
+    assert fields.sdf_net.writes_out_gradient(compiled=True)
+    fields.sdf_net.explicit_gradient = True  # the compiled queries' path, without compiling
+    _, g = fields.sdf_and_gradient(x, create_graph=False)
     assert not g.requires_grad and torch.allclose(g, g_ref.detach(), atol=1e-5 * float(g_ref.abs().max()))
 
 
