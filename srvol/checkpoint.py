@@ -48,13 +48,17 @@ class RunInfo:
 @dataclass
 class TrainState:
     """Where training is: the step, the stage (1 geometry + BRDF, 2 BRDF only), seconds trained,
-    the learning-rate scale (halved by each rollback after a non-finite loss) and the rollbacks."""
+    the learning-rate scale (halved by each rollback after a non-finite loss), the rollbacks and
+    the seconds spent compiling."""
 
     step: int = 0
     stage: int = 1
     elapsed: float = 0.0
     lr_scale: float = 1.0
     rollbacks: int = 0
+    paused: float = 0.0
+    """Seconds of ``elapsed`` the schedule does not count: compiling the field queries (they count in
+    the budget, but no step is taken while the beta cap and learning rates would move on)."""
 
     @staticmethod
     def from_json(d: dict) -> "TrainState":

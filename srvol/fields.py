@@ -217,9 +217,9 @@ class SceneFields(nn.Module):
 
 def _activation_slope(act: nn.Module, z: Tensor) -> Tensor:
     """d act(z) / dz of a head's activation (the explicit normal path of :class:`GridSDF`)."""
-    if isinstance(act, SharpGELU):
+    if isinstance(act, SharpGELU):  # d/dz GELU(100 z) / 100 = Phi(y) + y phi(y) at y = 100 z
         y = 100.0 * z
-        return 0.5 * (1.0 + torch.erf(y * 0.7071067811865476)) + y * torch.exp(-0.5 * y * y) * 0.3989422804014327
+        return 0.5 * (1.0 + torch.erf(y / math.sqrt(2.0))) + y * torch.exp(-0.5 * y * y) / math.sqrt(2.0 * math.pi)
     if isinstance(act, nn.Softplus):
         return torch.sigmoid(act.beta * z)
     raise ValueError(f"no slope for {type(act).__name__}")

@@ -27,7 +27,7 @@ from srvol.errors import SrvolError
 from srvol.fields import BETA_INIT, SceneFields
 from srvol.losses import (choose_stage2_samples, compute_loss, faithful_stage2_sampler, measure_error_map,
                           probe_pixels, probe_psnr, psnr_of)
-from srvol.pixels import PixelBank
+from srvol.pixels import PixelBank, PixelBatch
 from srvol.psf import PsfSampler, SRMode
 
 POSE_LR = 2e-4
@@ -109,6 +109,29 @@ def take_step(opts: list[torch.optim.Optimizer], loss: torch.Tensor, shard: Shar
     shard.sum_gradients([p for o in opts for g in o.param_groups for p in g["params"]])
     for o in opts:
         o.step()
+
+
+def warm_up_compiled(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
+                     intensity: torch.Tensor, capture: CaptureTerms | None, probe: PixelBatch | None) -> float:
+    """Seconds spent compiling ``stage``'s queries now: one step's loss and backward (gradients
+    dropped, the run's random draws untouched) and the probe's render. Without compiled queries, 0.
+
+    torch.compile compiles on first use (~65 s on a cold cache as stage 1 begins, ~30 s at stage 2);
+    inside the loop that time would pass on the schedule's clock with no step taken -- on stool the
+    beta cap fell to a third before step 200 and the run lost 5 dB (suite_tuning.md)."""
+    if not cfg.compile:
+        return 0.0
+    t0 = time.time()
+    device = bank.device
+    with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
+        gen = torch.Generator().manual_seed(cfg.seed + 104729)
+        compute_loss(fields, bank, cfg, psf, stage, gen, intensity, 0.0, capture).total.backward()
+        if probe is not None:
+            probe_psnr(fields, bank, probe, cfg, stage, intensity, capture)
+    fields.zero_grad(set_to_none=True)
+    if capture is not None:
+        capture.zero_grad(set_to_none=True)
+    return time.time() - t0
 
 
 def check_not_collapsed(fields: SceneFields, device) -> str | None:
@@ -253,6 +276,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     if state.stage == 2:  # the frozen geometry gives the same answer as when stage 2 began
         cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
         error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
+    state.paused += warm_up_compiled(fields, bank, cfg, psf, state.stage, light_intensity(), capture, probe)
     budget, = shard.agree(cfg.time_budget if cfg.iters == 0 else 0.0)  # rank 0's: one budget binds all ranks
     stage2_at = int(cfg.iters * (1 - cfg.stage2_fraction)) if cfg.iters else None
     log_path = run_dir / "log.jsonl"
@@ -273,7 +297,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             progress_frac = state.step / cfg.iters
             want_stage = 2 if state.step >= stage2_at and cfg.stage2_fraction > 0 else 1
         else:
-            progress_frac = elapsed / budget
+            paused, = shard.agree(state.paused)
+            progress_frac = max(0.0, elapsed - paused) / max(budget - paused, 1e-6)
             want_stage = 2 if progress_frac >= 1 - cfg.stage2_fraction and cfg.stage2_fraction > 0 else 1
             # Stop when the next step would end past the budget (a paper-preset step on a CPU takes
             # ~25 s). The first step of stage 2 is estimated from stage 1's by their rays per step;
@@ -296,6 +321,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "
                 f"({rays_per_step(cfg, 2)} rays per step)")
             error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
+            state.paused += warm_up_compiled(fields, bank, cfg, psf, 2, light_intensity(), capture, probe)
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         if cfg.coarse_to_fine > 0:  # without it every level stays open (the buffers' initial ones)
             fields.set_coarse_to_fine(progress_frac / cfg.coarse_to_fine if state.stage == 1 else 1.0)

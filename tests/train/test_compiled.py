@@ -106,3 +106,27 @@ def test_compiling_is_on_for_runs_long_enough_to_repay_it():
     assert not _compile(args(), iters=40)  # a short fixed-iteration run: the budget is not what bounds it
     assert _compile(args(), iters=COMPILE_MIN_ITERS)
     assert _compile(args("on"), iters=40) and not _compile(args("off"), iters=0)
+
+
+def test_the_warm_up_before_each_stage_leaves_the_runs_draws_untouched(default_scene, tmp_path, monkeypatch):
+    """A compiled run compiles with one throwaway step before each stage (off the schedule's clock);
+    that step draws from its own generators, so the run takes the same steps as an uncompiled one
+    (here the compiler is replaced by the eager queries: the warm-up itself is what is checked)."""
+    from dataclasses import replace
+
+    from srvol.data import load_scene
+    from srvol.presets import auto_config
+    from srvol.train import train
+
+    monkeypatch.setattr(SceneFields, "compile_queries", lambda self: None)
+    scene = load_scene(default_scene)
+    base = replace(auto_config(scene, "gaussian", 60.0), iters=8, time_budget=0.0, checkpoint_every=10_000,
+                   log_every=4, batch_in=64, batch_out=32, batch_eikonal=64, batch_stage2=64, stage2_fraction=0.5)
+    weights = []
+    for compile in (False, True):
+        run = tmp_path / f"compile_{compile}"
+        summary = train(scene, replace(base, compile=compile), run, progress=False, say=lambda *_: None)
+        assert summary.iterations == 8
+        weights.append(torch.load(run / "model.pt", weights_only=True))
+    for name, value in weights[0].items():
+        assert torch.equal(value, weights[1][name]), name
