@@ -144,9 +144,9 @@ def _add_eval(sub) -> None:
     p.add_argument("--views", help="comma-separated test view names (default: all test views)")
     p.add_argument("--no-relit", action="store_true", help="skip the moved-light metrics")
     p.add_argument("--compile", choices=("auto", "on", "off"), default="auto",
-                   help="render through torch.compile'd field queries (the same maths, faster after ~30 s of "
-                        f"compiling, cached on disk); auto: on when the test views hold >= {EVAL_COMPILE_MIN_PIXELS:,} "
-                        "HR pixels (default auto)")
+                   help="render through torch.compile'd field queries (the same maths, ~1.7x as fast after ~20 s "
+                        "of compiling on first use, ~2 s once cached); auto: on when the test views hold >= "
+                        f"{EVAL_COMPILE_MIN_PIXELS:,} HR pixels (default auto)")
     p.add_argument("--gt", type=Path,
                    help="the GT folder of a synthetic capture (srvol synth --capture): align the imported scene "
                         "to it by the photos' camera centres, report rotation errors, score the GT's held-out "

@@ -119,9 +119,10 @@ def add_parser(sub) -> None:
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="device (default cpu)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--compile", choices=("auto", "on", "off"), default="auto",
-                   help="run the fields' queries through torch.compile: the same maths, ~1.5x the steps per second "
-                        "on a CPU after ~30 s of compiling (cached on disk for later runs); auto: on for a run of "
-                        f"at least {COMPILE_MIN_SECONDS:.0f} s or {COMPILE_MIN_ITERS} iterations (default auto)")
+                   help="run the fields' queries through torch.compile: the same maths, ~1.4x the steps per second "
+                        "on a CPU; compiling takes ~2 min on a machine's first run of a model and ~15 s once cached "
+                        "(inside the budget, off the schedule's clock); auto: on for a run of at least "
+                        f"{COMPILE_MIN_SECONDS:.0f} s or {COMPILE_MIN_ITERS} iterations (default auto)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument("--force", action="store_true", help="replace an existing run folder")
     p.add_argument("--checkpoint-every", type=int, help="iterations between checkpoints (default 200)")
