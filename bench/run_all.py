@@ -6,7 +6,8 @@ import sys
 import time
 
 BENCHES = ("bench.bench_synth", "bench.bench_train", "bench.bench_stage2", "bench.bench_export", "bench.bench_relight",
-           "bench.bench_study", "bench.bench_view", "bench.bench_batch", "bench.bench_compile")
+           "bench.bench_study", "bench.bench_view", "bench.bench_batch", "bench.bench_compile",
+           "bench.bench_anchors")
 
 
 def main() -> int:

@@ -255,11 +255,11 @@ FREE_SPACE_MARGIN = 0.05
 """The line of sight to an anchor is free space up to this far (scene units) before it: a few LR
 pixels' footprint at the suite's distances, beyond a triangulated point's error."""
 FREE_SPACE_SAMPLES = 4
+"""Points drawn on each anchor's line of sight per step."""
 ANCHOR_TOLERANCE = 0.015
 """A point pulls the surface only from further than this (scene units): the stereo points lie within
 it of the surface for 90 % of them (tuning scene glossy: median 0.004, p90 0.015), and pulled all the
 way they would print their own noise into the surface the photometric loss refines."""
-"""Points drawn on each anchor's line of sight per step."""
 
 
 def anchor_loss(sdf_at, points: Tensor, eyes: Tensor, n: int, gen: torch.Generator, bound: float = 1.0) -> Tensor:
