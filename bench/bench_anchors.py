@@ -22,25 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from bench.paths import write_result
+from srvol.capture.compare import point_distances
 from srvol.cli_parser import OneLineParser
 
 RESULTS = Path(__file__).resolve().parent / "results"
 DEFAULT_SCENES = ("glossy", "bumpy", "stool", "airplane")
 """The tuning scenes auto's anchors choice was measured on (suite_tuning.md)."""
 SURFACE_SAMPLES = 1_000_000
-
-
-def surface_distances(points: np.ndarray, mesh, samples: int = SURFACE_SAMPLES, seed: int = 0) -> np.ndarray:
-    """Each point's distance to ``mesh`` (a trimesh), read as the nearest of ``samples`` points drawn
-    uniformly over its area: too high by about half their spacing (sqrt(area / samples)) at most
-    points, by twice that at a few."""
-    import trimesh
-    from scipy.spatial import cKDTree
-
-    on_surface, _ = trimesh.sample.sample_surface(mesh, samples, seed=seed)
-    if len(points) == 0:
-        return np.zeros(0)
-    return cKDTree(on_surface).query(points)[0]
+"""Points drawn on the GT mesh to read each anchor's distance from (``point_distances``)."""
 
 
 def scene_row(name: str, work: Path) -> dict:
@@ -58,7 +47,7 @@ def scene_row(name: str, work: Path) -> dict:
     found = find_anchors(scene)
     seconds = time.perf_counter() - t0
     mesh = trimesh.load(scene_dir / "gt" / "mesh.ply", force="mesh", process=False)
-    d = surface_distances(found.points, mesh)
+    d = point_distances(found.points, mesh, SURFACE_SAMPLES)
     lr_px = hr_pixel_size(scene) * scene.info.sr_factor
 
     def share(x: float) -> float:

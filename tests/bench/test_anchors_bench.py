@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from bench.bench_anchors import main, surface_distances, table
+from bench.bench_anchors import main, table
+from srvol.capture.compare import point_distances
 
 
 def test_points_on_and_off_a_sphere_read_their_distance():
@@ -15,12 +16,12 @@ def test_points_on_and_off_a_sphere_read_their_distance():
     dirs = np.random.default_rng(0).normal(size=(50, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     for r in (0.5, 0.6, 0.375):
-        err = surface_distances(dirs * r, sphere, samples=200_000) - abs(r - 0.5)
+        err = point_distances(dirs * r, sphere, samples=200_000) - abs(r - 0.5)
         assert err.min() > -1e-3 and err.max() < 0.008
 
 
 def test_no_points_no_distances():
-    assert surface_distances(np.zeros((0, 3)), trimesh.creation.box(), samples=1000).shape == (0,)
+    assert point_distances(np.zeros((0, 3)), trimesh.creation.box(), samples=1000).shape == (0,)
 
 
 def test_the_table_names_each_scene_and_the_command():
