@@ -115,8 +115,9 @@ def run_rules(run: Path) -> str:
     s2 = json.loads(summary.read_text()).get("stage2_samples", "") if summary.is_file() else ""
     s2 = f", stage 2 {s2.replace(' ', '')} samples" if s2 else ""  # runs before the check recorded none
     drawn = f", stage 2 error map {cfg.stage2_importance:g}" if cfg.stage2_importance else ""
+    moving = f", stage 2 SDF x{cfg.stage2_geometry_lr:g}" if cfg.stage2_geometry_lr else ""
     return (cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f
-            + sdf + s2 + drawn)
+            + sdf + s2 + drawn + moving)
 
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:
@@ -254,6 +255,7 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "the twice larger model auto derived before, `2 PSF rays` with `material 2^14` a run of the auto "
              "before stage 1's centre rays and the finer material grid, `B-spline SDF` a run of the rule that gives "
              "spread-out silhouettes quadratic B-spline SDF grids (rows without it on such scenes came before it), "
+             "`stage 2 SDF x1` a run whose SDF goes on learning in stage 2 (rows without it: frozen, as before), "
              "`(earlier run)` a row carried over from "
              "the table before (its run folder was not on the machine that collected this one). Reproduce: `srvol bench suite "
              + command + "` (resumable; each run's commands below).", "",

@@ -146,13 +146,15 @@ def _read_checkpoint(ckpt_dir: Path) -> tuple[TrainState, dict] | None:
     return None
 
 
-def freeze_geometry(fields, capture=None) -> None:
-    """Stage 2: the SDF, beta and (with capture terms) the refined poses stop learning."""
-    for p in fields.geometry_parameters() + (capture.pose_parameters() if capture is not None else []):
+def freeze_geometry(fields, capture=None, keep_sdf: bool = False) -> None:
+    """Stage 2: the SDF, beta and (with capture terms) the refined poses stop learning; with
+    ``keep_sdf`` (``TrainConfig.stage2_geometry_lr``) the SDF goes on learning."""
+    frozen = [fields.log_beta] if keep_sdf else fields.geometry_parameters()
+    for p in frozen + (capture.pose_parameters() if capture is not None else []):
         p.requires_grad_(False)
 
 
-def load_checkpoint(ckpt_dir: Path, fields, capture=None) -> Checkpoint | None:
+def load_checkpoint(ckpt_dir: Path, fields, capture=None, keep_sdf: bool = False) -> Checkpoint | None:
     """Restore ``fields`` (and the ``capture`` terms, when the run has them) in place from the last
     checkpoint; None when there is none."""
     read = _read_checkpoint(ckpt_dir)
@@ -167,7 +169,7 @@ def load_checkpoint(ckpt_dir: Path, fields, capture=None) -> Checkpoint | None:
     except (KeyError, RuntimeError, TypeError) as e:
         raise SrvolError(f"{ckpt_dir}: checkpoint does not match the run's fields ({e.__class__.__name__})") from None
     if state.stage == 2:
-        freeze_geometry(fields, capture)
+        freeze_geometry(fields, capture, keep_sdf)
     return ck
 
 

@@ -75,6 +75,9 @@ class TrainConfig:
     """Stage 1: over its second half the SDF's learning rates fall by this further factor
     (geometrically, on top of the run's decay), so the surface settles rather than moving with each
     step's few hundred rays to the end (:func:`srvol.train.geometry_tail`); 1 = off (the paper)."""
+    stage2_geometry_lr: float = 0.0
+    """Stage 2: the SDF goes on learning at this share of the rate it ended stage 1 with, under the
+    photometric and eikonal terms (beta stays frozen); 0 = the geometry is frozen (the paper)."""
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
     lambda_smooth: float = 0.0  # stage 1: weight of mean |n(x) - n(x + e)|^2 on the surface (losses.py); 0 = off

@@ -265,14 +265,14 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     rank's share of the step; each term is divided by its count over all ranks, so the ranks'
     gradients sum to the whole step's (:mod:`srvol.distributed`). ``error_map``: draw the in-mask
     pixels where the error is, and write what this step measured back into it."""
-    train_geo = stage == 1
+    train_geo = stage == 1 or cfg.stage2_geometry_lr > 0
     whole = sample_pixels(bank, cfg, psf, stage, gen, progress, error_map)
     g_lo, g_hi = shard.span(whole.weights.shape[0])
     batch = whole.groups(g_lo, g_hi)
     rays, ray_view = batch.rays, batch.ray_view
     R = whole.weights.shape[2]
     rows = [torch.arange(g_lo * R, g_hi * R)]  # the rank's rays among the whole step's
-    use_mask = train_geo and bank.has_masks and len(bank.outside) > 0
+    use_mask = stage == 1 and bank.has_masks and len(bank.outside) > 0
     if use_mask:
         o_lo, o_hi = shard.span(cfg.batch_out)
         out = bank.sample(cfg.batch_out, False, psf, 1, gen, near_share=cfg.silhouette_rays).groups(o_lo, o_hi)

@@ -50,6 +50,9 @@ BETA_ANNEAL = 0.3
 GEOMETRY_LR_TAIL = 0.1
 """auto: the further factor the SDF's learning rates fall by over the second half of stage 1."""
 
+STAGE2_GEOMETRY_LR = 1.0
+"""auto: stage 2's SDF learning rate, as a share of the one stage 1 ended with (0 = frozen, the paper)."""
+
 THIN_SHARE = 0.03
 """auto: masks with at least this share of their pixels in parts narrower than the locating
 samples' spacing turn on the thin-parts sampling (refining samples, silhouette rays). On the
@@ -279,6 +282,13 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    "whatever a step's few hundred rays say, and the surface kept moving by that to the end (tuning "
                    "scenes, 600 s, side by side with auto: stool 44.14 dB, 4.15 deg vs 43.17, 4.48; airplane 43.71, "
                    "3.42 vs 43.17, 4.64; suite_tuning.md)")
+    cfg = replace(cfg, stage2_geometry_lr=STAGE2_GEOMETRY_LR)
+    reasons.append(f"stage 2 refines the SDF with the BRDF, at x{STAGE2_GEOMETRY_LR:g} of the rate stage 1 ended with "
+                   "(--stage2-geometry-lr 0 = frozen, the paper's): a glossy lobe needs the surface under it to a "
+                   "fraction of a degree, and frozen, the BRDF widens its lobes to fit the surface it has. Tuning set, "
+                   "600 s, against the suite table's auto: HR PSNR +0.48 dB on the mean (dark +1.26, shiny +1.03, stool "
+                   "+0.95, glossy +0.17, bumpy -0.04, airplane -0.49, within its 1.4 dB spread), normals -0.26 deg; "
+                   "stage 2 takes ~1.3x as long a step (suite_tuning.md)")
     cfg = replace(cfg, stage2_importance=STAGE2_IMPORTANCE)
     reasons.append(f"stage 2 draws {STAGE2_IMPORTANCE:.0%} of its patches by an error map of the training views, each "
                    "pixel weighted so the loss means the same (--stage2-importance 0 = uniform): a few flash "

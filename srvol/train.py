@@ -1,4 +1,5 @@
-"""SuperRVol training: stage 1 learns geometry and BRDF, stage 2 freezes geometry and refines the BRDF.
+"""SuperRVol training: stage 1 learns geometry and BRDF, stage 2 refines the BRDF with the geometry frozen
+(the paper) or still learning at a share of its last rate (``TrainConfig.stage2_geometry_lr``; auto).
 
 What a run is (:mod:`srvol.config`), the loss (:mod:`srvol.losses`), the pixels and their PSF rays
 (:mod:`srvol.pixels`) and checkpoints (:mod:`srvol.checkpoint`) live in their own modules; this one
@@ -45,15 +46,17 @@ def make_optimizers(fields: SceneFields, cfg: TrainConfig, stage: int,
     albedo_p, spec_p, table_p = fields.material_groups()
     opts: list[torch.optim.Optimizer] = []
     groups = []
-    if stage == 1:
+    if stage == 1 or cfg.stage2_geometry_lr > 0:
+        share = 1.0 if stage == 1 else cfg.stage2_geometry_lr
         if cfg.fields.kind == "grid":
             grid_p = [fields.sdf_net.grids.table]
             head_p = list(fields.sdf_net.head.parameters())
-            groups += [{"params": grid_p, "lr": cfg.lr_grid, "base_lr": cfg.lr_grid, "geometry": True},
-                       {"params": head_p, "lr": cfg.lr, "base_lr": cfg.lr, "geometry": True}]
+            groups += [{"params": grid_p, "lr": cfg.lr_grid, "base_lr": cfg.lr_grid * share, "geometry": True},
+                       {"params": head_p, "lr": cfg.lr, "base_lr": cfg.lr * share, "geometry": True}]
         else:
-            groups.append({"params": list(fields.sdf_net.parameters()), "lr": cfg.lr, "base_lr": cfg.lr,
+            groups.append({"params": list(fields.sdf_net.parameters()), "lr": cfg.lr, "base_lr": cfg.lr * share,
                            "geometry": True})
+    if stage == 1:
         groups.append({"params": [fields.log_beta], "lr": cfg.lr_beta, "base_lr": cfg.lr_beta})
     groups += [{"params": albedo_p, "lr": cfg.lr, "base_lr": cfg.lr},
                {"params": spec_p, "lr": cfg.lr_spec, "base_lr": cfg.lr_spec}]
@@ -261,7 +264,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     ckpt_dir = run_dir / "checkpoints"
     opts = make_optimizers(fields, cfg, 1, capture)
     if resume:
-        ck = load_checkpoint(ckpt_dir, fields, capture)
+        ck = load_checkpoint(ckpt_dir, fields, capture, cfg.stage2_geometry_lr > 0)
         if ck is None:
             raise SrvolError(f"{ckpt_dir}: nothing to resume (no checkpoint)")
         state = ck.state
@@ -314,12 +317,13 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                 break
         if want_stage != state.stage:
             state.stage = want_stage
-            freeze_geometry(fields, capture)
+            freeze_geometry(fields, capture, cfg.stage2_geometry_lr > 0)
             opts = make_optimizers(fields, cfg, 2, capture)
             recent.clear()  # the logged PSNR speaks of one stage
             cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
-            say(f"stage 2 at step {state.step}: geometry frozen, refining the BRDF "
-                f"({rays_per_step(cfg, 2)} rays per step)")
+            what = (f"refining the BRDF and the SDF (x{cfg.stage2_geometry_lr:g} of its last rate)"
+                    if cfg.stage2_geometry_lr > 0 else "geometry frozen, refining the BRDF")
+            say(f"stage 2 at step {state.step}: {what} ({rays_per_step(cfg, 2)} rays per step)")
             error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
             state.paused += warm_up_compiled(fields, bank, cfg, psf, 2, light_intensity(), capture, probe)
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
@@ -332,7 +336,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             state.rollbacks += 1
             if state.rollbacks > 5:
                 raise SrvolError("training diverged: the loss stayed non-finite after 5 rollbacks")
-            ck = load_checkpoint(ckpt_dir, fields, capture)
+            ck = load_checkpoint(ckpt_dir, fields, capture, cfg.stage2_geometry_lr > 0)
             state.lr_scale *= 0.5
             if ck is not None:
                 state.step, state.stage = ck.state.step, ck.state.stage

@@ -55,6 +55,10 @@ def add_parser(sub) -> None:
     p.add_argument("--geometry-lr-tail", type=float, metavar="F",
                    help="stage 1: the SDF's learning rates fall by a further factor F, 0.001..1, over the second "
                         "half of stage 1, so the surface settles (auto 0.1; fast, paper 1 = off)")
+    p.add_argument("--stage2-geometry-lr", type=float, metavar="F",
+                   help="stage 2: the SDF goes on learning at F, 0..1, times the rate stage 1 ended with, so the "
+                        "surface under each highlight can move with the BRDF (0 = frozen, the paper's and every "
+                        "preset's)")
     p.add_argument("--stage2-importance", type=float, metavar="S",
                    help="stage 2: draw this share, 0..0.9, of the pixels in proportion to an error map of the "
                         "training views (the flash highlights left to fit), the rest uniformly, each weighted so "
@@ -232,6 +236,10 @@ def build_config(scene, args):
         if not (math.isfinite(args.geometry_lr_tail) and 0.001 <= args.geometry_lr_tail <= 1.0):
             raise SrvolError(f"--geometry-lr-tail {args.geometry_lr_tail}: must be between 0.001 and 1")
         changes["geometry_lr_tail"] = args.geometry_lr_tail
+    if args.stage2_geometry_lr is not None:
+        if not (math.isfinite(args.stage2_geometry_lr) and 0.0 <= args.stage2_geometry_lr <= 1.0):
+            raise SrvolError(f"--stage2-geometry-lr {args.stage2_geometry_lr}: must be between 0 and 1")
+        changes["stage2_geometry_lr"] = args.stage2_geometry_lr
     if args.stage2_importance is not None:
         changes["stage2_importance"] = _share(args.stage2_importance, "--stage2-importance", 0.9)
     if args.lattice_cell is not None:

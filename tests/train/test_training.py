@@ -267,10 +267,10 @@ def test_finest_material_cell_follows_the_psf_passband():
 
 
 def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
-    for args in (("--capacity", "0"), ("--capacity", "2", "--preset", "paper")):
+    for args in (("--capacity", "0"), ("--capacity", "2", "--preset", "paper"), ("--stage2-geometry-lr", "2")):
         p = _srvol("train", str(default_scene), "--out", str(tmp_path / "r"), "--iters", "1", *args)
         _, err = p.communicate(timeout=60)
-        assert p.returncode == 2 and err.count("\n") == 1 and "--capacity" in err
+        assert p.returncode == 2 and err.count("\n") == 1 and args[0] in err
 
 
 def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
@@ -588,3 +588,40 @@ def test_the_sdf_settles_over_the_second_half_of_stage_1(default_scene):
     lr = {id(p): g["lr"] for g in opt.param_groups for p in g["params"]}
     assert math.isclose(lr[id(fields.sdf_net.grids.table)], cfg.lr_grid * decay * 0.1)
     assert math.isclose(lr[id(fields.mat_grid.table)], cfg.lr_grid * decay)
+
+
+@pytest.mark.parametrize("share", [0.0, 0.5])
+def test_stage2_moves_the_sdf_only_when_asked(share, default_scene, tmp_path):
+    """Stage 2 of a 10-step run (the last 5): with stage2_geometry_lr 0 (every preset) the SDF ends as
+    stage 1 left it; at 0.5 it goes on learning at half stage 1's last rate, and beta stays frozen."""
+    from srvol.checkpoint import freeze_geometry
+    from srvol.train import make_optimizers, set_learning_rate
+
+    scene = load_scene(default_scene)
+    cfg = replace(_tiny(auto_config(scene, "gaussian", 60.0), 10), stage2_fraction=0.5, compile=False,
+                  stage2_geometry_lr=share)
+    fields = SceneFields(cfg.fields, learn_intensity=False)
+    freeze_geometry(fields, keep_sdf=share > 0)
+    assert fields.sdf_net.grids.table.requires_grad == (share > 0) and not fields.log_beta.requires_grad
+    opt, = make_optimizers(fields, cfg, 2)
+    set_learning_rate([opt], 0.7, cfg, 1.0)
+    sdf_lrs = [g["lr"] for g in opt.param_groups if g.get("geometry")]
+    if share == 0:
+        assert sdf_lrs == []
+    else:  # the grid's rate: the run's decay, stage 1's tail, then the share
+        decay = (cfg.lr_final / cfg.lr) ** 0.7
+        assert math.isclose(sdf_lrs[0], cfg.lr_grid * decay * cfg.geometry_lr_tail * share)
+    run = tmp_path / "run"
+    train(scene, replace(cfg, snapshots=2), run, progress=False, say=lambda *_: None)
+    stage1_end, end = (torch.load(p, weights_only=True)["sdf_net.grids.table"]
+                       for p in sorted((run / "snapshots").glob("*.pt")))
+    assert torch.equal(stage1_end, end) == (share == 0)
+
+
+def test_auto_lets_the_sdf_learn_in_stage_2_and_says_so_while_fast_and_paper_freeze_it(default_scene):
+    from srvol.presets import STAGE2_GEOMETRY_LR
+
+    cfg = auto_config(load_scene(default_scene), "gaussian", 600.0)
+    assert cfg.stage2_geometry_lr == STAGE2_GEOMETRY_LR == 1.0
+    assert fast_config().stage2_geometry_lr == paper_config().stage2_geometry_lr == 0.0
+    assert any("stage 2 refines the SDF" in r for r in cfg.reasons)
