@@ -286,9 +286,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     reasons.append(f"stage 2 refines the SDF with the BRDF, at x{STAGE2_GEOMETRY_LR:g} of the rate stage 1 ended with "
                    "(--stage2-geometry-lr 0 = frozen, the paper's): a glossy lobe needs the surface under it to a "
                    "fraction of a degree, and frozen, the BRDF widens its lobes to fit the surface it has. Tuning set, "
-                   "600 s, against the suite table's auto: HR PSNR +0.48 dB on the mean (dark +1.26, shiny +1.03, stool "
-                   "+0.95, glossy +0.17, bumpy -0.04, airplane -0.49, within its 1.4 dB spread), normals -0.26 deg; "
-                   "stage 2 takes ~1.3x as long a step (suite_tuning.md)")
+                   "600 s, against the suite table's auto: HR PSNR +0.44 dB on the mean (dark +1.26, shiny +1.03, stool "
+                   "+0.95, glossy +0.17, torus +0.17, bumpy -0.04, airplane -0.49, within its 1.4 dB spread), normals "
+                   "-0.23 deg; a stage-2 step takes 1.3-1.4x as long (suite_tuning.md)")
     cfg = replace(cfg, stage2_importance=STAGE2_IMPORTANCE)
     reasons.append(f"stage 2 draws {STAGE2_IMPORTANCE:.0%} of its patches by an error map of the training views, each "
                    "pixel weighted so the loss means the same (--stage2-importance 0 = uniform): a few flash "
