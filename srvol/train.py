@@ -321,9 +321,8 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             opts = make_optimizers(fields, cfg, 2, capture)
             recent.clear()  # the logged PSNR speaks of one stage
             cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
-            what = (f"refining the BRDF and the SDF (x{cfg.stage2_geometry_lr:g} of its last rate)"
-                    if cfg.stage2_geometry_lr > 0 else "geometry frozen, refining the BRDF")
-            say(f"stage 2 at step {state.step}: {what} ({rays_per_step(cfg, 2)} rays per step)")
+            what = f"the SDF at x{cfg.stage2_geometry_lr:g} its rate" if cfg.stage2_geometry_lr else "geometry frozen"
+            say(f"stage 2 at step {state.step}: refining the BRDF, {what} ({rays_per_step(cfg, 2)} rays per step)")
             error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
             state.paused += warm_up_compiled(fields, bank, cfg, psf, 2, light_intensity(), capture, probe)
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)

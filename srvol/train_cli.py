@@ -57,8 +57,7 @@ def add_parser(sub) -> None:
                         "half of stage 1, so the surface settles (auto 0.1; fast, paper 1 = off)")
     p.add_argument("--stage2-geometry-lr", type=float, metavar="F",
                    help="stage 2: the SDF goes on learning at F, 0..1, times the rate stage 1 ended with, so the "
-                        "surface under each highlight can move with the BRDF (0 = frozen, the paper's and every "
-                        "preset's)")
+                        "surface under each highlight moves with the BRDF (auto 1; fast, paper 0 = frozen)")
     p.add_argument("--stage2-importance", type=float, metavar="S",
                    help="stage 2: draw this share, 0..0.9, of the pixels in proportion to an error map of the "
                         "training views (the flash highlights left to fit), the rest uniformly, each weighted so "
