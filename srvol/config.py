@@ -76,8 +76,9 @@ class TrainConfig:
     (geometrically, on top of the run's decay), so the surface settles rather than moving with each
     step's few hundred rays to the end (:func:`srvol.train.geometry_tail`); 1 = off (the paper)."""
     stage2_geometry_lr: float = 0.0
-    """Stage 2: the SDF goes on learning at this share of the rate it ended stage 1 with, under the
-    photometric and eikonal terms (beta stays frozen); 0 = the geometry is frozen (the paper)."""
+    """Stage 2: the SDF goes on learning at this share of the rate it ended stage 1 with, under stage
+    1's terms but the mask's (stage 2 draws in-mask pixels only; beta stays frozen); 0 = the geometry
+    is frozen (the paper)."""
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
     lambda_smooth: float = 0.0  # stage 1: weight of mean |n(x) - n(x + e)|^2 on the surface (losses.py); 0 = off
@@ -120,6 +121,10 @@ class TrainConfig:
     """Run the fields' queries through ``torch.compile`` (:mod:`srvol.compiled`): the same maths in
     fewer, fused kernels; eager where compiling fails."""
     reasons: tuple[str, ...] = ()
+
+    def trains_geometry(self, stage: int) -> bool:
+        """Whether the SDF learns in ``stage``: always in stage 1, in stage 2 with stage2_geometry_lr."""
+        return stage == 1 or self.stage2_geometry_lr > 0
 
     def to_json(self) -> dict:
         d = asdict(self)

@@ -265,7 +265,7 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
     rank's share of the step; each term is divided by its count over all ranks, so the ranks'
     gradients sum to the whole step's (:mod:`srvol.distributed`). ``error_map``: draw the in-mask
     pixels where the error is, and write what this step measured back into it."""
-    train_geo = stage == 1 or cfg.stage2_geometry_lr > 0
+    train_geo = cfg.trains_geometry(stage)
     whole = sample_pixels(bank, cfg, psf, stage, gen, progress, error_map)
     g_lo, g_hi = shard.span(whole.weights.shape[0])
     batch = whole.groups(g_lo, g_hi)

@@ -1,5 +1,4 @@
-"""SuperRVol training: stage 1 learns geometry and BRDF, stage 2 refines the BRDF with the geometry frozen
-(the paper) or still learning at a share of its last rate (``TrainConfig.stage2_geometry_lr``; auto).
+"""SuperRVol training: stage 1 learns geometry and BRDF, stage 2 refines the BRDF (``stage2_geometry_lr``: the SDF too).
 
 What a run is (:mod:`srvol.config`), the loss (:mod:`srvol.losses`), the pixels and their PSF rays
 (:mod:`srvol.pixels`) and checkpoints (:mod:`srvol.checkpoint`) live in their own modules; this one
@@ -46,15 +45,16 @@ def make_optimizers(fields: SceneFields, cfg: TrainConfig, stage: int,
     albedo_p, spec_p, table_p = fields.material_groups()
     opts: list[torch.optim.Optimizer] = []
     groups = []
-    if stage == 1 or cfg.stage2_geometry_lr > 0:
+    if cfg.trains_geometry(stage):
         share = 1.0 if stage == 1 else cfg.stage2_geometry_lr
+        lr_grid, lr_head = cfg.lr_grid * share, cfg.lr * share
         if cfg.fields.kind == "grid":
             grid_p = [fields.sdf_net.grids.table]
             head_p = list(fields.sdf_net.head.parameters())
-            groups += [{"params": grid_p, "lr": cfg.lr_grid, "base_lr": cfg.lr_grid * share, "geometry": True},
-                       {"params": head_p, "lr": cfg.lr, "base_lr": cfg.lr * share, "geometry": True}]
+            groups += [{"params": grid_p, "lr": lr_grid, "base_lr": lr_grid, "geometry": True},
+                       {"params": head_p, "lr": lr_head, "base_lr": lr_head, "geometry": True}]
         else:
-            groups.append({"params": list(fields.sdf_net.parameters()), "lr": cfg.lr, "base_lr": cfg.lr * share,
+            groups.append({"params": list(fields.sdf_net.parameters()), "lr": lr_head, "base_lr": lr_head,
                            "geometry": True})
     if stage == 1:
         groups.append({"params": [fields.log_beta], "lr": cfg.lr_beta, "base_lr": cfg.lr_beta})
@@ -264,7 +264,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     ckpt_dir = run_dir / "checkpoints"
     opts = make_optimizers(fields, cfg, 1, capture)
     if resume:
-        ck = load_checkpoint(ckpt_dir, fields, capture, cfg.stage2_geometry_lr > 0)
+        ck = load_checkpoint(ckpt_dir, fields, capture, cfg.trains_geometry(2))
         if ck is None:
             raise SrvolError(f"{ckpt_dir}: nothing to resume (no checkpoint)")
         state = ck.state
@@ -317,7 +317,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
                 break
         if want_stage != state.stage:
             state.stage = want_stage
-            freeze_geometry(fields, capture, cfg.stage2_geometry_lr > 0)
+            freeze_geometry(fields, capture, cfg.trains_geometry(2))
             opts = make_optimizers(fields, cfg, 2, capture)
             recent.clear()  # the logged PSNR speaks of one stage
             cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
@@ -335,7 +335,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             state.rollbacks += 1
             if state.rollbacks > 5:
                 raise SrvolError("training diverged: the loss stayed non-finite after 5 rollbacks")
-            ck = load_checkpoint(ckpt_dir, fields, capture, cfg.stage2_geometry_lr > 0)
+            ck = load_checkpoint(ckpt_dir, fields, capture, cfg.trains_geometry(2))
             state.lr_scale *= 0.5
             if ck is not None:
                 state.step, state.stage = ck.state.step, ck.state.stage
