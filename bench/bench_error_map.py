@@ -6,10 +6,12 @@ error of the 4x4 patch around each (what a stage-2 lattice patch centred there w
 prints:
 
 * how concentrated the error is (the share held by the worst 0.1 % and 1 % of the patches);
-* the time :func:`srvol.losses.measure_error_map` takes (a quarter of the pixels, as training does);
+* the time :func:`srvol.losses.measure_error_map` takes (every in-mask pixel, as training does);
 * WINDOWS windows of 25 steps of the run's patches per step, drawn uniformly and by that map at
   each share in SHARES (weighted as training weighs them): the window PSNR's median, 1st and 99th
-  percentiles and its largest distance from the whole set's PSNR.
+  percentiles and its largest distance from the whole set's PSNR; and, for comparison, drawn by a map
+  measured at every other pixel in each direction (training's before: a quarter of the rays) and by
+  each patch's own error (the best a map could do).
 
 ``--chart OUT.png RUN ...`` draws the runs' logged stage-2 PSNR (per 25-step window, and the
 probe's) against the step instead (``suite_stage2_swing.png``). Otherwise it prints only
@@ -85,6 +87,14 @@ def bench_run(run: Path) -> None:
         m = ErrorMap(bank, share)
         m.error = measured.error
         rows.append((f"error map, share {share:g}", m.probabilities().numpy().astype(np.float64)))
+    # the map measured at every other pixel in each direction, each lending its error to its three
+    # unmeasured neighbours (training's map before), and each patch's own error (the best a map could do)
+    ij = bank.ij.long()
+    lent = bank.view_start[bank.view] + (ij[:, 1] - ij[:, 1] % 2) * bank.sizes[bank.view, 1] + ij[:, 0] - ij[:, 0] % 2
+    quarter = ErrorMap(bank, SHARES[0])
+    quarter.fill(patch_sums(bank, pixel_se[lent] * bank.mask, PATCH))
+    rows.append((f"quarter map, share {SHARES[0]:g}", quarter.probabilities().numpy().astype(np.float64)))
+    rows.append((f"exact patches, share {SHARES[0]:g}", (1 - SHARES[0]) / n + SHARES[0] * error / error.sum()))
     print(f"  {'draw':24s} {'median':>7s} {'p1':>7s} {'p99':>7s} {'max |window - all|':>19s}  (dB, {STEPS}-step windows)")
     for name, p in rows:
         med, p1, p99, worst = window_spread(error, count, p / p.sum(), per_step, rng)

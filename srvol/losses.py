@@ -23,7 +23,7 @@ from srvol.anchors import AnchorPoints, anchor_loss
 from srvol.capture.terms import CaptureTerms
 from srvol.config import TrainConfig, psf_rays_per_pixel, sampler_of_stage
 from srvol.distributed import SINGLE, Shard
-from srvol.error_map import ErrorMap, every_other, nearest_even, patch_sums
+from srvol.error_map import ErrorMap, patch_sums
 from srvol.errors import SrvolError
 from srvol.fields import SceneFields
 from srvol.pixels import PixelBank, PixelBatch, group_side, sample_pixels
@@ -182,13 +182,10 @@ def centre_squared_errors(fields: SceneFields, bank: PixelBank, rows: Tensor, cf
 def measure_error_map(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler,
                       intensity: Tensor, capture: CaptureTerms | None = None) -> ErrorMap:
     """Stage 2's error map (:mod:`srvol.error_map`, share ``cfg.stage2_importance``): one centre ray
-    at every other in-mask pixel, each pixel given its measured neighbour's squared error, and each
-    cell the mean over its pixels of the error of the group (patch) centred there."""
+    at every in-mask pixel, and each cell the mean over its pixels of the error of the group (patch)
+    centred there."""
     error_map = ErrorMap(bank, cfg.stage2_importance)
-    measured = every_other(bank)
-    measured = measured[bank.mask[measured]]
-    pixel_se = centre_squared_errors(fields, bank, measured, cfg, intensity, capture)
-    pixel_se = pixel_se[nearest_even(bank)] * bank.mask
+    pixel_se = centre_squared_errors(fields, bank, bank.inside, cfg, intensity, capture)
     error_map.fill(patch_sums(bank, pixel_se, group_side(cfg, psf, 2)))
     return error_map
 
