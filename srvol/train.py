@@ -171,7 +171,7 @@ def recent_psnr(recent: deque[tuple[float, float]]) -> float:
 
 def settle_stage2_sampler(fields: SceneFields, bank: PixelBank, probe, cfg: TrainConfig, intensity,
                           capture: CaptureTerms | None, shard: Shard, say) -> TrainConfig:
-    """``cfg`` with the stage-2 sampler :func:`choose_stage2_samples` picks on the frozen geometry
+    """``cfg`` with the stage-2 sampler :func:`choose_stage2_samples` picks on the geometry as it stands
     (rank 0 measures; every rank takes its answer)."""
     choice = choose_stage2_samples(fields, bank, probe, cfg, intensity, capture) if shard.is_main else None
     widened, = shard.agree(1.0 if choice is not None and choice.widened else 0.0)
@@ -208,7 +208,7 @@ def surface_anchors(scene: Scene, cfg: TrainConfig, stage: int, run_dir: Path, d
 
 def stage2_error_map(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, intensity,
                      capture: CaptureTerms | None, shard: Shard, say) -> ErrorMap | None:
-    """Stage 2's error map (:mod:`srvol.error_map`) on the frozen geometry; None when
+    """Stage 2's error map (:mod:`srvol.error_map`) on the geometry as it stands; None when
     ``cfg.stage2_importance`` is 0. Every rank of a data-parallel run holds rank 0's map and writes
     the whole step's errors into it, so all draw the same patches."""
     if cfg.stage2_importance <= 0:
@@ -276,7 +276,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     anchors = surface_anchors(scene, cfg, state.stage, run_dir, device, say)
     probe = probe_pixels(bank, cfg, psf) if main else None
     error_map = None
-    if state.stage == 2:  # the frozen geometry gives the same answer as when stage 2 began
+    if state.stage == 2:  # measured again on the geometry as it stands (frozen: as when stage 2 began)
         cfg = settle_stage2_sampler(fields, bank, probe, cfg, light_intensity(), capture, shard, say)
         error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
     state.paused += warm_up_compiled(fields, bank, cfg, psf, state.stage, light_intensity(), capture, probe)
