@@ -47,14 +47,14 @@ class TrainConfig:
     many pixels (same rays per step); then psf_samples rays per pixel. The first phase settles the
     geometry from many pixels; the second resolves the PSF integral. 0 = the paper's schedule."""
     stage2_psf_sampler: str = ""
-    """gaussian only: the sampler of stage 2 (geometry frozen), "" = psf_sampler. A lattice suits
+    """gaussian only: the sampler of stage 2 (BRDF through the PSF), "" = psf_sampler. A lattice suits
     stage 2: its deterministic Gaussian weights give the BRDF low-noise gradients, and the
     argument against it in stage 1 (4x4-pixel patches show the geometry fewer, less varied
     pixels per step) no longer applies."""
     stage2_sampler: SamplerConfig | None = None
-    """Samples per ray in stage 2 (geometry and beta frozen), None = ``sampler``. With the surface
-    fixed and beta small, a few samples around the first crossing carry the whole VolSDF weight, and
-    the locating pass only has to bracket a surface it no longer moves."""
+    """Samples per ray in stage 2 (beta fixed, the SDF frozen or learning slowly), None = ``sampler``.
+    With the surface settled and beta small, a few samples around the first crossing carry the
+    whole VolSDF weight, and the locating pass only has to bracket a surface that moves little."""
     patch: int = 4
     lattice_cell: float = 0.5
     """Lattice spacing in LR pixels."""

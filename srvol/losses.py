@@ -8,7 +8,8 @@
                                          views and x on their lines of sight (optional; srvol.anchors)
 
 An LR pixel is estimated from the rays the stage's PSF sampler gives it
-(:func:`srvol.pixels.sample_pixels`). Stage 2 (geometry frozen) keeps the photometric term only.
+(:func:`srvol.pixels.sample_pixels`). Stage 2 keeps the photometric term, and while its SDF learns
+(``TrainConfig.trains_geometry``) the eikonal and smoothness terms; never the mask.
 """
 from __future__ import annotations
 

@@ -42,7 +42,7 @@ stage-2 step takes 2.1x less time (bench/results/stage2_table.md)."""
 AUTO_CAPTURE_TERMS = CaptureTermsConfig(exposure=True, vignetting=True, ambient=False, pose=False)
 
 AUTO_STAGE2_FRACTION = 0.3
-"""auto's share of the time budget for stage 2 (BRDF refinement on frozen geometry)."""
+"""auto's share of the time budget for stage 2 (the BRDF refined through the PSF, beta fixed)."""
 
 BETA_ANNEAL = 0.3
 """auto: share of the run over which beta's cap falls from 0.1 to the HR pixel footprint."""
@@ -217,7 +217,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     if mode == SRMode.GAUSSIAN:
         # Stage 1 fits the geometry from pixel-centre rays: a PSF estimate's noise (even an antithetic
         # pair's) costs the surface more than the blur it models buys there; the PSF's detail is
-        # recovered in stage 2, where the frozen geometry lets low-noise shared lattices carry it.
+        # recovered in stage 2, where the settled geometry lets low-noise shared lattices carry it.
         # ns = 2 keeps the rays per step of the 2-ray estimate (auto_batches), for --psf-samples too.
         ns = 2
         reasons.append(f"stage 1 (geometry): one ray at each LR pixel's centre, {ns}x the pixels of a {ns}-ray PSF "
@@ -227,7 +227,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                        "stool 41.17 vs 32.01, 37.76, 40.46 with an antithetic PSF pair per pixel and half the "
                        "material detail; suite_tuning.md; --psf-samples N asks for N PSF rays per pixel in stage 1 "
                        "instead)")
-        reasons.append("stage 2 (geometry frozen): shared ray lattices with Gaussian weights -- low-noise PSF "
+        reasons.append("stage 2 (BRDF through the PSF): shared ray lattices with Gaussian weights -- low-noise PSF "
                        "estimates for the BRDF (90 more seconds of stage 2 on a finished 600 s run, 32 + 12 samples "
                        "per ray: +0.10 dB HR PSNR vs -1.44 dB with antithetic pairs, -1.95 dB with 2 i.i.d. rays -- "
                        "the L1 of a noisy estimate pulls towards images flat within each pixel -- and -0.05 dB for "
@@ -247,9 +247,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                          sdf_hidden=hidden, mat_hidden=hidden)
     stage1 = SamplerConfig()
     stage2 = STAGE2_SAMPLER
-    reasons.append(f"stage 2 (geometry frozen): {STAGE2_SAMPLER.n_coarse} locating + "
+    reasons.append(f"stage 2 (surface settled, beta fixed): {STAGE2_SAMPLER.n_coarse} locating + "
                    f"{STAGE2_SAMPLER.gradient_samples} gradient samples per ray (stage 1: {stage1.n_coarse} + "
-                   f"{stage1.gradient_samples}): the surface no longer moves and beta is small, so a few samples "
+                   f"{stage1.gradient_samples}): the surface moves little (at most at the rate stage 1 ended with) and beta is small, so a few samples "
                    "around the crossing carry its weight; 2.1x the stage-2 steps in the same time, +0.21 dB in 90 s "
                    "vs +0.10 (stage2_table.md). Checked when stage 2 begins: where they render the probe pixels "
                    "more than 0.25 dB below stage 1's samples (tuning scenes with thin parts: stool 0.91 dB, "

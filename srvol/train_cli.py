@@ -46,7 +46,7 @@ def add_parser(sub) -> None:
                         "the pixels (noSR's estimate, free of its noise; the PSF enters in stage 2) (default: "
                         "auto centre, or antithetic with --psf-samples; fast and paper mc; see README)")
     p.add_argument("--stage2-psf-sampler", choices=("mc", "antithetic", "lattice"),
-                   help="--sr gaussian: the sampler of stage 2 (geometry frozen, BRDF refined); default: auto "
+                   help="--sr gaussian: the sampler of stage 2 (BRDF refined through the PSF); default: auto "
                         "lattice (low-noise Gaussian weights for the BRDF), otherwise the --psf-sampler of stage 1")
     p.add_argument("--batch-scale", type=float, metavar="K",
                    help="multiply the preset's pixels per step (both stages, the mask, eikonal and smoothness "

@@ -297,7 +297,7 @@ def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
 
 def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_scene):
     """auto --sr gaussian: stage 1 traces one ray at each pixel's centre, twice the pixels of a 2-ray
-    estimate (varied pixels for the geometry, no PSF noise); stage 2 (geometry frozen) estimates the
+    estimate (varied pixels for the geometry, no PSF noise); stage 2 (the surface settled) estimates the
     PSF from shared lattices with Gaussian weights, at the same rays per step as noSR's stage 2.
     --psf-sampler alone sets both stages; --stage2-psf-sampler sets stage 2."""
     import argparse
