@@ -289,8 +289,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
     recent: deque[tuple[float, float]] = deque(maxlen=cfg.log_every)  # (squared error, pixels) of the last steps
     last_good_step = state.step
     snaps_done = len(list((run_dir / "snapshots").glob("*.pt"))) if cfg.snapshots else 0
-    step_seconds = 0.0  # the last step's duration: the estimate of the next one's
-    stage2_skipped = False
+    step_seconds, stage2_skipped = 0.0, False  # the last step's duration: the estimate of the next one's
     while True:
         # rank 0's clock for every rank: all agree when stage 2 starts and when the budget ends
         elapsed, step_seconds = shard.agree(time.time() - t_start, step_seconds)
@@ -325,6 +324,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             say(f"stage 2 at step {state.step}: refining the BRDF, {what} ({rays_per_step(cfg, 2)} rays per step)")
             error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
             state.paused += warm_up_compiled(fields, bank, cfg, psf, 2, light_intensity(), capture, probe)
+            elapsed = time.time() - t_start  # stage 2's set-up (check, map: 10-90 s) is not its first step's time
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         if cfg.coarse_to_fine > 0:  # without it every level stays open (the buffers' initial ones)
             fields.set_coarse_to_fine(progress_frac / cfg.coarse_to_fine if state.stage == 1 else 1.0)

@@ -177,6 +177,30 @@ def test_a_time_budget_is_not_overrun_by_a_slow_last_step(default_scene, tmp_pat
     assert any(s.startswith("stage 2 skipped") for s in said) and not any(s.startswith("stage 2 at") for s in said)
 
 
+def test_stage_2s_set_up_is_not_taken_for_its_step_time(default_scene, tmp_path, monkeypatch):
+    """A 3 s budget, stage 2 from 1.5 s on, and a stage-2 error map that takes 1 s (on a slow machine
+    auto's map took 72 s of cow's 180 s stage 2): the budget guard estimates the next step from the
+    step alone, so stage 2 goes on training after its map instead of stopping after one step
+    because "the last step took 1 s"."""
+    import srvol.train as T
+
+    scene = load_scene(default_scene)
+    cfg = replace(_tiny(fast_config(), 0), iters=0, time_budget=3.0, stage2_fraction=0.5, batch_in=16,
+                  batch_out=16, batch_eikonal=16, batch_stage2=16)
+    real = T.stage2_error_map
+
+    def slow_map(*args):
+        time.sleep(1.0)
+        return real(*args)
+
+    monkeypatch.setattr(T, "stage2_error_map", slow_map)
+    said = []
+    summary = T.train(scene, cfg, tmp_path / "run", progress=False, say=said.append)
+    began = next(int(s.split()[4].rstrip(":")) for s in said if s.startswith("stage 2 at step"))
+    assert summary.iterations - began >= 3, (began, summary)
+    assert summary.train_seconds <= 3.5, summary
+
+
 def test_collapsed_sdf_is_reported():
     f = SceneFields(fast_config().fields, learn_intensity=False)
     assert check_not_collapsed(f, "cpu") is None
