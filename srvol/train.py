@@ -324,7 +324,7 @@ def train(scene: Scene, cfg: TrainConfig, run_dir: Path, resume: bool = False, p
             say(f"stage 2 at step {state.step}: refining the BRDF, {what} ({rays_per_step(cfg, 2)} rays per step)")
             error_map = stage2_error_map(fields, bank, cfg, psf, light_intensity(), capture, shard, say)
             state.paused += warm_up_compiled(fields, bank, cfg, psf, 2, light_intensity(), capture, probe)
-            elapsed = time.time() - t_start  # stage 2's set-up (check, map: 10-90 s) is not its first step's time
+            elapsed = time.time() - t_start  # stage 2's set-up (check, map: 10-80 s) is not its first step's time
         set_learning_rate(opts, progress_frac, cfg, state.lr_scale)
         if cfg.coarse_to_fine > 0:  # without it every level stays open (the buffers' initial ones)
             fields.set_coarse_to_fine(progress_frac / cfg.coarse_to_fine if state.stage == 1 else 1.0)
