@@ -185,14 +185,24 @@ def psnr_of(row: dict, column: str, key: str = "psnr_hr") -> float:
     return float(v) if isinstance(v, (int, float)) else float("nan")
 
 
+SUBSET_VARIANTS = ("box",)
+"""Variants run on a subset of the scenes (Vol-SR): they do not narrow the set means of the others."""
+
+
 def set_means(rows: list[dict], columns: list[str], key: str) -> dict[str, dict[str, float]]:
-    """Per set and column: the mean over the set's scenes that have every column (comparable means)."""
+    """Per set and column: the mean over the set's scenes that have every full-suite column (comparable
+    means); a subset column (Vol-SR) is averaged over those of them it was run on, counted in
+    ``scenes_<column>``."""
     out = {}
+    main = [c for c in columns if c not in SUBSET_VARIANTS]
     for name in ("tuning", "report"):
-        full = [r for r in rows if r["set"] == name and all(math.isfinite(psnr_of(r, c, key)) for c in columns)]
-        out[name] = {c: float(np.mean([psnr_of(r, c, key) for r in full])) if full else float("nan")
-                     for c in columns}
-        out[name]["scenes"] = len(full)
+        full = [r for r in rows if r["set"] == name and all(math.isfinite(psnr_of(r, c, key)) for c in main)]
+        out[name] = {"scenes": len(full)}
+        for c in columns:
+            have = [psnr_of(r, c, key) for r in full if math.isfinite(psnr_of(r, c, key))]
+            out[name][c] = float(np.mean(have)) if have else float("nan")
+            if c in SUBSET_VARIANTS:
+                out[name][f"scenes_{c}"] = len(have)
     return out
 
 
@@ -203,20 +213,26 @@ def _f(v, spec: str = ".2f") -> str:
 def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
     """The one-row-per-scene table: HR PSNR / masked PSNR of bicubic and every variant, set means."""
     names = ["bicubic", *(VARIANTS[c] for c in columns[1:])]
+    box = "box" in columns
     lines = ["| scene | set | LR | PSF | views | " + " | ".join(f"{n} HR / masked" for n in names)
-             + " | SR - bicubic | SR - noSR |", "|" + "---|" * (len(names) + 7)]
+             + " | SR - bicubic | SR - noSR |" + (" SR - Vol-SR |" if box else ""),
+             "|" + "---|" * (len(names) + 7 + box)]
     for r in rows:
         cells = [f"{_f(psnr_of(r, c))} / {_f(psnr_of(r, c, 'psnr_hr_masked'))}" for c in columns]
-        sr, none, bic = psnr_of(r, "gaussian"), psnr_of(r, "none"), psnr_of(r, "bicubic")
+        sr, none, bic, vol = (psnr_of(r, c) for c in ("gaussian", "none", "bicubic", "box"))
         lines.append(f"| {r['scene']} | {r['set']} | {r.get('lr', '-')} | {_f(r.get('psf_sigma'), '.3g')} | "
                      f"{r.get('views', '-')} | " + " | ".join(cells) + f" | {_f(sr - bic, '+.2f')} | "
-                     f"{_f(sr - none, '+.2f')} |")
+                     f"{_f(sr - none, '+.2f')} |" + (f" {_f(sr - vol, '+.2f')} |" if box else ""))
     hr, masked = set_means(rows, columns, "psnr_hr"), set_means(rows, columns, "psnr_hr_masked")
     for name in ("tuning", "report"):
-        cells = [f"{_f(hr[name][c])} / {_f(masked[name][c])}" for c in columns]
+        cells = [f"{_f(hr[name][c])} / {_f(masked[name][c])}"
+                 + (f" (on {hr[name][f'scenes_{c}']})" if c in SUBSET_VARIANTS else "") for c in columns]
         g, n, b = (hr[name].get(c, float("nan")) for c in ("gaussian", "none", "bicubic"))
+        vol = [psnr_of(r, "gaussian") - psnr_of(r, "box") for r in rows if r["set"] == name]
+        vol = [v for v in vol if math.isfinite(v)]
         lines.append(f"| **{name} mean** ({hr[name]['scenes']} scenes) | {name} | | | | " + " | ".join(cells)
-                     + f" | {_f(g - b, '+.2f')} | {_f(g - n, '+.2f')} |")
+                     + f" | {_f(g - b, '+.2f')} | {_f(g - n, '+.2f')} |"
+                     + (f" {_f(float(np.mean(vol)) if vol else float('nan'), '+.2f')} |" if box else ""))
     return lines
 
 
@@ -249,7 +265,8 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "at a time (two `bench_suite` processes with disjoint --scenes, then --collect).", "",
              "HR metrics are means over each scene's held-out test views. bicubic: each test view's own LR image "
              "upsampled bicubically (a 2D reference that sees the test view, which no 3D method is given). Set "
-             "means are over the scenes with every column. `rules` (every run): the beta cap, refining samples, "
+             "means are over the scenes with every column; Vol-SR, run on a subset, is averaged over the scenes it "
+             "ran on (`on N`), and `SR - Vol-SR` is taken per scene. `rules` (every run): the beta cap, refining samples, "
              "stage-1 rays, head width and material hash table the run trained with -- `beta free` marks a run of "
              "auto before the cap and the thin-parts rule (`srvol/presets.py`), a rule without `heads 32` a run of "
              "the twice larger model auto derived before, `2 PSF rays` with `material 2^14` a run of the auto "

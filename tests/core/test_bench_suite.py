@@ -68,3 +68,27 @@ def test_collect_carries_over_committed_rows_whose_runs_are_not_here(tmp_path):
     assert bench_suite.main(args) == 0
     again = json.loads((results / "suite_table.json").read_text())[0]["variants"]["gaussian"]["rules"]
     assert again == "beta cap 0.0038 (earlier run)"
+
+
+def test_vol_sr_on_a_subset_does_not_narrow_the_other_means():
+    """Vol-SR (box) runs on one of two report scenes: bicubic, noSR and SR are still averaged over
+    both scenes, Vol-SR over the one it ran on, and the table says how many that is."""
+    from bench.bench_suite import set_means, summary_lines
+
+    def row(scene, bic, none, sr, box=None):
+        variants = {"none": {"psnr_hr": none, "psnr_hr_masked": none - 8},
+                    "gaussian": {"psnr_hr": sr, "psnr_hr_masked": sr - 8}}
+        if box is not None:
+            variants["box"] = {"psnr_hr": box, "psnr_hr_masked": box - 8}
+        return {"scene": scene, "set": "report", "bicubic": {"psnr_hr": bic, "psnr_hr_masked": bic - 8},
+                "variants": variants}
+
+    rows = [row("die", 36.0, 36.5, 37.5, box=37.0), row("cup", 42.0, 37.0, 37.0)]
+    columns = ["bicubic", "none", "gaussian", "box"]
+    means = set_means(rows, columns, "psnr_hr")["report"]
+    assert means["scenes"] == 2 and means["gaussian"] == 37.25 and means["bicubic"] == 39.0
+    assert means["box"] == 37.0 and means["scenes_box"] == 1
+    lines = summary_lines(rows, columns)
+    assert lines[0].endswith("| SR - bicubic | SR - noSR | SR - Vol-SR |")
+    assert lines[2].endswith("| +1.50 | +1.00 | +0.50 |")  # die: SR over bicubic, noSR, Vol-SR
+    assert "37.00 / 29.00 (on 1)" in lines[-1] and lines[-1].endswith("| -1.75 | +0.50 | +0.50 |")
