@@ -68,12 +68,15 @@ def run_folder(work: Path, key: str, sr: str, args) -> Path:
     return work / "runs" / f"{key}_auto_{sr}_{length}"
 
 
-def train_and_eval(scene: Path, run: Path, sr: str, args) -> dict:
+def train_and_eval(scene: Path, run: Path, sr: str, args, extra: tuple[str, ...] = (),
+                   eval_extra: tuple[str, ...] = ()) -> dict:
     """One variant's row: train and evaluate unless done before (--collect: never train). Keys of
     RUN_KEYS plus train PSNR, iterations, parameters, peak memory and the commands; 'error' or
-    'missing' when there is no result."""
-    train = ["srvol", "train", str(scene), "--out", str(run), "--sr", sr, *length_args(args), "--quiet", "--force"]
-    ev = ["srvol", "eval", str(run)]
+    'missing' when there is no result. ``extra``: more `srvol train` flags (e.g. --capacity),
+    ``eval_extra``: more `srvol eval` flags."""
+    train = ["srvol", "train", str(scene), "--out", str(run), "--sr", sr, *length_args(args), *extra, "--quiet",
+             "--force"]
+    ev = ["srvol", "eval", str(run), *eval_extra]
     row: dict = {"command": " ".join(train) + " && " + " ".join(ev)}
     summary, metrics = run / "train_summary.json", run / "metrics.json"
     try:

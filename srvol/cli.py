@@ -249,7 +249,7 @@ def _neural_relit_fn(fields):
 
 BENCHES = {"all": "bench.run_all", "synth": "bench.bench_synth", "train": "bench.bench_train",
            "stage2": "bench.bench_stage2", "export": "bench.bench_export", "relight": "bench.bench_relight", "study": "bench.bench_study",
-           "suite": "bench.bench_suite", "view": "bench.bench_view", "batch": "bench.bench_batch",
+           "suite": "bench.bench_suite", "capacity": "bench.bench_capacity", "view": "bench.bench_view", "batch": "bench.bench_batch",
            "compile": "bench.bench_compile"}
 
 
@@ -265,6 +265,7 @@ def _add_bench(sub) -> None:
                         "compile (steps per second with and without the compiled field queries), "
                         "study (N_s sweep, "
                         "stability, capacity), suite (every built-in scene, tuning and report sets; hours, "
+                        "resumable; not part of 'all'), capacity (--capacity factors on suite scenes; hours, "
                         "resumable; not part of 'all') or all (default)")
     p.add_argument("args", nargs=argparse.REMAINDER, help="passed on to the benchmark")
     p.set_defaults(func=_run_bench)
