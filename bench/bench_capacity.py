@@ -107,16 +107,17 @@ def chart(rows: list[dict], factors: list[float], out: Path) -> None:
     import matplotlib.pyplot as plt
 
     others = [f for f in factors if f != 1.0]
-    fig, ax = plt.subplots(figsize=(2 + 1.2 * len(rows), 3.6))
+    means = factor_means(rows, factors, "psnr_hr")
+    fig, ax = plt.subplots(figsize=(2 + 1.2 * (len(rows) + 1), 3.6))
     bar = 0.8 / max(1, len(others))
     for k, f in enumerate(others):
-        vals = [_value(r, f, "psnr_hr") - _value(r, 1.0, "psnr_hr") for r in rows]
-        ax.bar(np.arange(len(rows)) + (k - (len(others) - 1) / 2) * bar, np.nan_to_num(vals), bar,
+        vals = [_value(r, f, "psnr_hr") - _value(r, 1.0, "psnr_hr") for r in rows] + [means[f]]
+        ax.bar(np.arange(len(rows) + 1) + (k - (len(others) - 1) / 2) * bar, np.nan_to_num(vals), bar,
                label=f"x{f:g}", color=f"C{k}")
     ax.axhline(0, color="k", lw=0.8)
     for y in (-0.5, 0.2):
         ax.axhline(y, color="0.5", lw=0.8, ls="--")
-    ax.set_xticks(range(len(rows)), [r["scene"] for r in rows])
+    ax.set_xticks(range(len(rows) + 1), [r["scene"] for r in rows] + ["mean"])
     ax.set_ylabel("HR PSNR against auto (x1), dB")
     ax.set_title("capacity: auto's model scaled (dashed: the -0.5 / +0.2 dB marks)")
     ax.grid(alpha=0.3, axis="y")
