@@ -18,15 +18,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import shlex
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from bench.bench_suite import ensure_scene, run_folder, scene_key, train_and_eval
-from bench.bench_train import RESULTS, WORK
+from bench.bench_suite import add_run_arguments, ensure_scene, fmt, run_folder, scene_key, train_and_eval
 from bench.paths import write_result
 from srvol.cli_parser import OneLineParser
 
@@ -63,10 +61,6 @@ def factor_means(rows: list[dict], factors: list[float], key: str) -> dict[float
     return out
 
 
-def _f(v: float, spec: str = ".2f") -> str:
-    return "-" if not math.isfinite(v) else format(v, spec)
-
-
 def table(rows: list[dict], factors: list[float], args, command: str) -> str:
     head = " | ".join(f"x{f:g}" for f in factors)
     lines = [f"# Capacity: auto's model scaled by --capacity F, {args.budget:g} s per run (2-core CPU)", "",
@@ -85,7 +79,7 @@ def table(rows: list[dict], factors: list[float], args, command: str) -> str:
         lines.append(f"| {r['scene']} ({r['set']}) | " + " | ".join(cells) + " |")
     hr, nm = factor_means(rows, factors, "psnr_hr"), factor_means(rows, factors, "normal_mae_deg")
     lines.append("| **mean change against x1** | " + " | ".join(
-        "-" if f == 1.0 else f"**{_f(hr[f], '+.2f')} dB**, {_f(nm[f], '+.2f')} deg" for f in factors) + " |")
+        "-" if f == 1.0 else f"**{fmt(hr[f], '+.2f')} dB**, {fmt(nm[f], '+.2f')} deg" for f in factors) + " |")
     lines += ["", "Per run:", "", "| scene | factor | parameters | iterations | train s | stage-2 swing dB (step) |",
               "|---|---|---|---|---|---|"]
     for r in rows:
@@ -93,7 +87,7 @@ def table(rows: list[dict], factors: list[float], args, command: str) -> str:
             v = r["runs"].get(f"{f:g}", {})
             if "psnr_hr" in v:
                 lines.append(f"| {r['scene']} | x{f:g} | {v['parameters'] / 1e6:.2f} M | {v['iterations']} | "
-                             f"{v['train_seconds']:.0f} | {_f(v.get('stage2_step_swing_db', float('nan')))} |")
+                             f"{v['train_seconds']:.0f} | {fmt(v.get('stage2_step_swing_db', float('nan')))} |")
     lines += ["", "Commands:", ""]
     lines += [f"- {r['scene']} x{k}: `{v['command']}`" for r in rows for k, v in r["runs"].items()]
     return "\n".join(lines) + "\n"
@@ -132,16 +126,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", default=",".join(DEFAULT_SCENES), help="comma list of scenes (default: %(default)s)")
     ap.add_argument("--factors", default=",".join(f"{f:g}" for f in DEFAULT_FACTORS),
                     help="comma list of --capacity factors; 1 is auto as derived (default: %(default)s)")
-    ap.add_argument("--budget", type=float, default=600.0, help="training seconds per run (default 600)")
-    ap.add_argument("--iters", type=int, default=0, help="train this many iterations instead of --budget (tests)")
-    ap.add_argument("--runs-at-once", type=int, default=1, help="for the header: runs sharing the machine (default 1)")
-    ap.add_argument("--threads-per-run", default=os.environ.get("OMP_NUM_THREADS", "2"),
-                    help="for the header: each run's OMP_NUM_THREADS (default: this process's)")
-    ap.add_argument("--collect", action="store_true", help="train nothing: re-tabulate the runs already in --work")
-    ap.add_argument("--synth", default="", help="extra `srvol synth` flags for every scene, as for `bench suite` "
-                                                "(cached apart)")
-    ap.add_argument("--work", type=Path, default=WORK / "suite", help="scenes and runs (default bench/work/suite)")
-    ap.add_argument("--results", type=Path, default=RESULTS, help="where the table and chart go (default bench/results)")
+    add_run_arguments(ap)
     args = ap.parse_args(argv)
     from srvol.synth.scenes import SCENES, scene_set
 

@@ -209,7 +209,8 @@ def set_means(rows: list[dict], columns: list[str], key: str) -> dict[str, dict[
     return out
 
 
-def _f(v, spec: str = ".2f") -> str:
+def fmt(v, spec: str = ".2f") -> str:
+    """A table cell: ``v`` formatted, or '-' for a missing or non-finite value."""
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
 
 
@@ -221,21 +222,21 @@ def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
              + " | SR - bicubic | SR - noSR |" + (" SR - Vol-SR |" if box else ""),
              "|" + "---|" * (len(names) + 7 + box)]
     for r in rows:
-        cells = [f"{_f(psnr_of(r, c))} / {_f(psnr_of(r, c, 'psnr_hr_masked'))}" for c in columns]
+        cells = [f"{fmt(psnr_of(r, c))} / {fmt(psnr_of(r, c, 'psnr_hr_masked'))}" for c in columns]
         sr, none, bic, vol = (psnr_of(r, c) for c in ("gaussian", "none", "bicubic", "box"))
-        lines.append(f"| {r['scene']} | {r['set']} | {r.get('lr', '-')} | {_f(r.get('psf_sigma'), '.3g')} | "
-                     f"{r.get('views', '-')} | " + " | ".join(cells) + f" | {_f(sr - bic, '+.2f')} | "
-                     f"{_f(sr - none, '+.2f')} |" + (f" {_f(sr - vol, '+.2f')} |" if box else ""))
+        lines.append(f"| {r['scene']} | {r['set']} | {r.get('lr', '-')} | {fmt(r.get('psf_sigma'), '.3g')} | "
+                     f"{r.get('views', '-')} | " + " | ".join(cells) + f" | {fmt(sr - bic, '+.2f')} | "
+                     f"{fmt(sr - none, '+.2f')} |" + (f" {fmt(sr - vol, '+.2f')} |" if box else ""))
     hr, masked = set_means(rows, columns, "psnr_hr"), set_means(rows, columns, "psnr_hr_masked")
     for name in ("tuning", "report"):
-        cells = [f"{_f(hr[name][c])} / {_f(masked[name][c])}"
+        cells = [f"{fmt(hr[name][c])} / {fmt(masked[name][c])}"
                  + (f" (on {hr[name][f'scenes_{c}']})" if c in SUBSET_VARIANTS else "") for c in columns]
         g, n, b = (hr[name].get(c, float("nan")) for c in ("gaussian", "none", "bicubic"))
         vol = [psnr_of(r, "gaussian") - psnr_of(r, "box") for r in rows if r["set"] == name]
         vol = [v for v in vol if math.isfinite(v)]
         lines.append(f"| **{name} mean** ({hr[name]['scenes']} scenes) | {name} | | | | " + " | ".join(cells)
-                     + f" | {_f(g - b, '+.2f')} | {_f(g - n, '+.2f')} |"
-                     + (f" {_f(float(np.mean(vol)) if vol else float('nan'), '+.2f')} |" if box else ""))
+                     + f" | {fmt(g - b, '+.2f')} | {fmt(g - n, '+.2f')} |"
+                     + (f" {fmt(float(np.mean(vol)) if vol else float('nan'), '+.2f')} |" if box else ""))
     return lines
 
 
@@ -250,12 +251,12 @@ def detail_lines(rows: list[dict]) -> list[str]:
                 lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {'failed: ' + v['error'] if 'error' in v else 'not run'} "
                              "|" + " |" * 13)
                 continue
-            lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {_f(v.get('psnr_hr'))} | {_f(v.get('psnr_hr_masked'))} | "
-                         f"{_f(v.get('ssim_hr'), '.3f')} | {_f(v.get('normal_mae_deg'))} | {_f(v.get('albedo_psnr'))} | "
-                         f"{_f(v.get('relit_psnr'))} | {_f(v.get('train_psnr'))} | "
-                         f"{_f(v.get('stage2_swing_db'))} / {_f(v.get('stage2_step_swing_db'))} | "
+            lines.append(f"| {r['scene']} | {VARIANTS[sr]} | {fmt(v.get('psnr_hr'))} | {fmt(v.get('psnr_hr_masked'))} | "
+                         f"{fmt(v.get('ssim_hr'), '.3f')} | {fmt(v.get('normal_mae_deg'))} | {fmt(v.get('albedo_psnr'))} | "
+                         f"{fmt(v.get('relit_psnr'))} | {fmt(v.get('train_psnr'))} | "
+                         f"{fmt(v.get('stage2_swing_db'))} / {fmt(v.get('stage2_step_swing_db'))} | "
                          f"{v['iterations']} | "
-                         f"{v['train_seconds']:.0f} | {v['parameters'] / 1e6:.2f} M | {_f(v.get('peak_rss_gib'))} | "
+                         f"{v['train_seconds']:.0f} | {v['parameters'] / 1e6:.2f} M | {fmt(v.get('peak_rss_gib'))} | "
                          f"{v.get('rules', '-')} |")
     return lines
 
@@ -320,12 +321,9 @@ def write_chart(rows: list[dict], variants: list[str], out: Path) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> int:
-    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenes", help="comma list of scenes (default: the tuning and report sets)")
-    ap.add_argument("--variants", default="none,gaussian",
-                    help="comma list of `srvol train --sr` values: none (noSR), gaussian (auto's SR), box (Vol-SR; "
-                         "add it on a subset, e.g. with --scenes) (default none,gaussian)")
+def add_run_arguments(ap: argparse.ArgumentParser) -> None:
+    """How long each run trains, how the machine was shared (for the header), --collect, the synth flags
+    and the folders: the flags of every benchmark that trains on the suite's scenes (suite, capacity)."""
     ap.add_argument("--budget", type=float, default=600.0, help="training seconds per run (default 600)")
     ap.add_argument("--iters", type=int, default=0, help="train this many iterations instead of --budget (tests)")
     ap.add_argument("--runs-at-once", type=int, default=1, help="for the table's header: how many runs shared the "
@@ -337,6 +335,15 @@ def main(argv=None) -> int:
                                                 "--synth='--lr 24x18 --views 4 --test-views 1' (cached apart)")
     ap.add_argument("--work", type=Path, default=WORK / "suite", help="scenes and runs (default bench/work/suite)")
     ap.add_argument("--results", type=Path, default=RESULTS, help="where the table and chart go (default bench/results)")
+
+
+def main(argv=None) -> int:
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", help="comma list of scenes (default: the tuning and report sets)")
+    ap.add_argument("--variants", default="none,gaussian",
+                    help="comma list of `srvol train --sr` values: none (noSR), gaussian (auto's SR), box (Vol-SR; "
+                         "add it on a subset, e.g. with --scenes) (default none,gaussian)")
+    add_run_arguments(ap)
     args = ap.parse_args(argv)
     from srvol.synth.scenes import SCENES
 
