@@ -119,8 +119,9 @@ def run_rules(run: Path) -> str:
     s2 = f", stage 2 {s2.replace(' ', '')} samples" if s2 else ""  # runs before the check recorded none
     drawn = f", stage 2 error map {cfg.stage2_importance:g}" if cfg.stage2_importance else ""
     moving = f", stage 2 SDF x{cfg.stage2_geometry_lr:g}" if cfg.stage2_geometry_lr else ""
+    clip = f", L1 saturated at {cfg.photometric_clip:g}" if cfg.photometric_clip else ""
     return (cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f
-            + sdf + s2 + drawn + moving)
+            + sdf + s2 + drawn + moving + clip)
 
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:
@@ -277,6 +278,8 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "before stage 1's centre rays and the finer material grid, `B-spline SDF` a run of the rule that gives "
              "spread-out silhouettes quadratic B-spline SDF grids (rows without it on such scenes came before it), "
              "`stage 2 SDF x1` a run whose SDF goes on learning in stage 2 (rows without it: frozen, as before), "
+             "`L1 saturated at 1` a run whose photometric L1 takes photo pixels at or past white as saturated "
+             "(rows without it: linear values, as before), "
              "`(earlier run)` a row carried over from "
              "the table before (its run folder was not on the machine that collected this one). Reproduce: `srvol bench suite "
              + command + "` (resumable; each run's commands below).", "",

@@ -79,6 +79,10 @@ class TrainConfig:
     """Stage 2: the SDF goes on learning at this share of the rate it ended stage 1 with, under stage
     1's terms but the mask's (stage 2 draws in-mask pixels only; beta stays frozen); 0 = the geometry
     is frozen (the paper)."""
+    photometric_clip: float = 0.0
+    """The photometric L1 compares each pixel estimate and its photo clipped at this white level, as
+    a sensor clips and as the HR metric does (both stages; :func:`srvol.losses.photometric_l1`);
+    0 = unclipped linear values (the paper)."""
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
     lambda_smooth: float = 0.0  # stage 1: weight of mean |n(x) - n(x + e)|^2 on the surface (losses.py); 0 = off

@@ -57,12 +57,19 @@ def psnr_of(squared_error: float, pixels: float) -> float:
     return float(-10 * math.log10(max(squared_error / max(pixels, 1.0), 1e-10)))
 
 
-def photometric_l1(estimate: Tensor, batch: PixelBatch, count: float | None = None) -> Tensor:
+def photometric_l1(estimate: Tensor, batch: PixelBatch, count: float | None = None, clip: float = 0.0) -> Tensor:
     """Mean L1 over the batch's foreground pixels (a lattice patch may reach past the silhouette),
     each weighted by its importance when an error map drew them; ``count``: divide by this instead
-    (all ranks' weighted foreground pixels)."""
+    (all ranks' weighted foreground pixels). ``clip`` > 0: a photo at or above that white level is
+    saturated, as on a sensor, and an estimate there costs only what it falls short of white; below
+    white the L1 is unchanged (an estimate past white where the photo is not still costs its excess)."""
     fg = batch.pixel_weight
-    per_pixel = (estimate - batch.target).abs().mean(-1) * fg
+    target = batch.target
+    if clip > 0:
+        saturated = target >= clip
+        estimate = torch.where(saturated, estimate.clamp(max=clip), estimate)
+        target = target.clamp(max=clip)
+    per_pixel = (estimate - target).abs().mean(-1) * fg
     return per_pixel.sum() / (fg.sum().clamp_min(1.0) if count is None else max(count, 1.0))
 
 
@@ -299,7 +306,7 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
         gradients = torch.zeros(0, 3)
     n_mask = batch.n_pixels + len(rays) - n_pix_rays if use_mask else 0
     fg_count, eik_count, mask_count = shard.total(float(batch.pixel_weight.sum()), len(gradients), n_mask)
-    photometric = photometric_l1(rgb, batch, fg_count)
+    photometric = photometric_l1(rgb, batch, fg_count, cfg.photometric_clip)
     total = photometric
     if train_geo:
         eik = eikonal(gradients, eik_count)

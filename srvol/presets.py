@@ -289,6 +289,10 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    "600 s, against the suite table's auto: HR PSNR +0.44 dB on the mean (dark +1.26, shiny +1.03, stool "
                    "+0.95, glossy +0.17, torus +0.17, bumpy -0.04, airplane -0.49, within its 1.4 dB spread), normals "
                    "-0.23 deg; a stage-2 step takes 1.3-1.4x as long (suite_tuning.md)")
+    reasons.append("photometric L1 on linear values (--photometric-clip 1 takes photo pixels at or past white as "
+                   "saturated, as a sensor and the HR metric clip them): tuning scenes, 600 s, against auto side by "
+                   "side: shiny +1.33 dB, glossy -0.74, airplane -1.47 (against an earlier run; its spread is ~1.4 "
+                   "dB), and the four scenes with no pixel past white unchanged: -0.13 dB on the mean (suite_tuning.md)")
     cfg = replace(cfg, stage2_importance=STAGE2_IMPORTANCE)
     reasons.append(f"stage 2 draws {STAGE2_IMPORTANCE:.0%} of its patches by an error map of the training views, each "
                    "pixel weighted so the loss means the same (--stage2-importance 0 = uniform): a few flash "

@@ -658,3 +658,40 @@ def test_auto_lets_the_sdf_learn_in_stage_2_and_says_so_while_fast_and_paper_fre
     assert cfg.stage2_geometry_lr == STAGE2_GEOMETRY_LR == 1.0
     assert fast_config().stage2_geometry_lr == paper_config().stage2_geometry_lr == 0.0
     assert any("stage 2 refines the SDF" in r for r in cfg.reasons)
+
+
+def test_a_clipped_l1_charges_nothing_above_white_where_the_photo_is_above_it_too():
+    """Photo 5 (a highlight past white) and estimates 3, 0.5: unclipped the L1 charges 2 and 4.5; with
+    the photo saturated at 1, as a sensor and the HR metric clip it, the first costs nothing and the
+    second 0.5. Where the photo is below white the two losses agree, past white included."""
+    from types import SimpleNamespace
+
+    from srvol.losses import photometric_l1
+
+    batch = SimpleNamespace(target=torch.tensor([[5.0] * 3, [5.0] * 3, [0.2] * 3, [0.9] * 3]),
+                            pixel_weight=torch.ones(4))
+    estimate = torch.tensor([[3.0] * 3, [0.5] * 3, [0.3] * 3, [1.3] * 3], requires_grad=True)
+    assert math.isclose(float(photometric_l1(estimate.detach(), batch)), (2.0 + 4.5 + 0.1 + 0.4) / 4, rel_tol=1e-6)
+    clipped = photometric_l1(estimate, batch, clip=1.0)
+    assert math.isclose(float(clipped), (0.0 + 0.5 + 0.1 + 0.4) / 4, rel_tol=1e-6)
+    (g,) = torch.autograd.grad(clipped, estimate)
+    # nothing pulls the first down; the second up; the third and fourth (photo below white: past white
+    # is still an error) down
+    assert float(g[0].abs().sum()) == 0.0 and float(g[1].sum()) < 0 and float(g[2].sum()) > 0 and float(g[3].sum()) > 0
+
+
+def test_the_saturated_l1_is_an_option_auto_states_and_leaves_off(default_scene, tmp_path):
+    import argparse
+
+    from srvol.train_cli import add_parser, build_config
+
+    scene = load_scene(default_scene)
+    cfg = auto_config(scene, "gaussian", 600.0)
+    assert cfg.photometric_clip == fast_config().photometric_clip == paper_config().photometric_clip == 0.0
+    assert any(r.startswith("photometric L1 on linear values (--photometric-clip 1") for r in cfg.reasons)
+    ap = argparse.ArgumentParser()
+    add_parser(ap.add_subparsers())
+    args = ["train", str(default_scene), "--out", str(tmp_path / "r")]
+    assert build_config(scene, ap.parse_args(args + ["--photometric-clip", "1"])).photometric_clip == 1.0
+    with pytest.raises(SrvolError, match="--photometric-clip -1.0: must be between 0 and 1000"):
+        build_config(scene, ap.parse_args(args + ["--photometric-clip", "-1"]))
