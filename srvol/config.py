@@ -80,9 +80,9 @@ class TrainConfig:
     1's terms but the mask's (stage 2 draws in-mask pixels only; beta stays frozen); 0 = the geometry
     is frozen (the paper)."""
     photometric_clip: float = 0.0
-    """The photometric L1 compares each pixel estimate and its photo clipped at this white level, as
-    a sensor clips and as the HR metric does (both stages; :func:`srvol.losses.photometric_l1`);
-    0 = unclipped linear values (the paper)."""
+    """A photo pixel at or past this white level is saturated, as on a sensor and in the HR metric:
+    the photometric L1 charges an estimate there only what it falls short of it (both stages;
+    :func:`srvol.losses.photometric_l1`); 0 = linear values (the paper, and auto: suite_tuning.md)."""
     lambda_eikonal: float = 0.1
     lambda_mask: float = 0.1
     lambda_smooth: float = 0.0  # stage 1: weight of mean |n(x) - n(x + e)|^2 on the surface (losses.py); 0 = off

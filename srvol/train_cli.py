@@ -56,8 +56,9 @@ def add_parser(sub) -> None:
                    help="stage 1: the SDF's learning rates fall by a further factor F, 0.001..1, over the second "
                         "half of stage 1, so the surface settles (auto 0.1; fast, paper 1 = off)")
     p.add_argument("--photometric-clip", type=float, metavar="W",
-                   help="the photometric L1 compares the estimate and the photo clipped at white level W, as a "
-                        "sensor and the HR metric clip them (default 0 = linear values; tuning set: shiny +1.3 dB, glossy -0.7, "
+                   help="the photometric L1 takes photo pixels at or past white level W as saturated, as a sensor "
+                        "and the HR metric clip them: an estimate there costs only what it falls short of W "
+                        "(default 0 = linear values; tuning set: shiny +1.3 dB, glossy -0.7, "
                         "airplane -1.5, so auto leaves it off; bench/results/suite_tuning.md)")
     p.add_argument("--stage2-geometry-lr", type=float, metavar="F",
                    help="stage 2: the SDF goes on learning at F, 0..1, times the rate stage 1 ended with, so the "
