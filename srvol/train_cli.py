@@ -145,8 +145,8 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run_train)
 
 
-def _share(value: float, flag: str, most: float, least: float = 0.0, unit: str = "") -> float:
-    """A value checked finite and in [least, most] (a share: 0..most); one error line otherwise."""
+def _in_range(value: float, flag: str, most: float, least: float = 0.0, unit: str = "") -> float:
+    """A flag's value checked finite and in [least, most] (a share: 0..most); one error line otherwise."""
     if not (math.isfinite(value) and least <= value <= most):
         raise SrvolError(f"{flag} {value}: must be between {least:g} and {most:g}{unit}")
     return value
@@ -237,31 +237,31 @@ def build_config(scene, args):
     if args.stage2_psf_sampler is not None:
         changes["stage2_psf_sampler"] = args.stage2_psf_sampler
     if args.geometry_lr_tail is not None:
-        changes["geometry_lr_tail"] = _share(args.geometry_lr_tail, "--geometry-lr-tail", 1.0, 0.001)
+        changes["geometry_lr_tail"] = _in_range(args.geometry_lr_tail, "--geometry-lr-tail", 1.0, least=0.001)
     if args.stage2_geometry_lr is not None:
-        changes["stage2_geometry_lr"] = _share(args.stage2_geometry_lr, "--stage2-geometry-lr", 1.0)
+        changes["stage2_geometry_lr"] = _in_range(args.stage2_geometry_lr, "--stage2-geometry-lr", 1.0)
     if args.stage2_importance is not None:
-        changes["stage2_importance"] = _share(args.stage2_importance, "--stage2-importance", 0.9)
+        changes["stage2_importance"] = _in_range(args.stage2_importance, "--stage2-importance", 0.9)
     if args.lattice_cell is not None:
-        changes["lattice_cell"] = _share(args.lattice_cell, "--lattice-cell", 1.0, 0.05, " LR pixel")
+        changes["lattice_cell"] = _in_range(args.lattice_cell, "--lattice-cell", 1.0, least=0.05, unit=" LR pixel")
     if args.stage2_fraction is not None:
-        changes["stage2_fraction"] = _share(args.stage2_fraction, "--stage2-fraction", 0.9)
+        changes["stage2_fraction"] = _in_range(args.stage2_fraction, "--stage2-fraction", 0.9)
     if args.psf_warmup is not None:
-        changes["psf_warmup"] = _share(args.psf_warmup, "--psf-warmup", 0.85)
+        changes["psf_warmup"] = _in_range(args.psf_warmup, "--psf-warmup", 0.85)
     if args.sr == "none":
         changes["psf_samples"] = 1
     if args.checkpoint_every is not None:
         changes["checkpoint_every"] = max(1, args.checkpoint_every)
     if args.beta_anneal is not None:
-        changes["beta_anneal"] = _share(args.beta_anneal, "--beta-anneal", 0.9)
+        changes["beta_anneal"] = _in_range(args.beta_anneal, "--beta-anneal", 0.9)
     if args.beta_cap_end is not None:
-        changes["beta_cap_end"] = _share(args.beta_cap_end, "--beta-cap-end", 0.1, 1e-5)
+        changes["beta_cap_end"] = _in_range(args.beta_cap_end, "--beta-cap-end", 0.1, least=1e-5)
     if args.photometric_clip is not None:
-        changes["photometric_clip"] = _share(args.photometric_clip, "--photometric-clip", 1e3)
+        changes["photometric_clip"] = _in_range(args.photometric_clip, "--photometric-clip", 1e3)
     if args.coarse_to_fine is not None:
-        changes["coarse_to_fine"] = _share(args.coarse_to_fine, "--coarse-to-fine", 0.9)
+        changes["coarse_to_fine"] = _in_range(args.coarse_to_fine, "--coarse-to-fine", 0.9)
     if args.silhouette_rays is not None:
-        changes["silhouette_rays"] = _share(args.silhouette_rays, "--silhouette-rays", 1.0)
+        changes["silhouette_rays"] = _in_range(args.silhouette_rays, "--silhouette-rays", 1.0)
     if args.refine_samples is not None:
         if not 0 <= args.refine_samples <= 64:
             raise SrvolError(f"--refine-samples {args.refine_samples}: must be 0..64")
