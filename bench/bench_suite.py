@@ -68,6 +68,20 @@ def run_folder(work: Path, key: str, sr: str, args) -> Path:
     return work / "runs" / f"{key}_auto_{sr}_{length}"
 
 
+WARM_UP_ITERS = 40
+"""Steps of the untimed run before each timed one: both stages' queries compile (stage 2 begins at 70 %)."""
+
+
+def warm_compile_cache(scene: Path, run: Path, sr: str, extra: tuple[str, ...]) -> None:
+    """Compile the run's field queries into torch's on-disk cache with a short untimed run of the same
+    flags, so the timed run starts warm. Cold, compiling took 110-130 s of a 600 s budget with two
+    runs compiling at once (35 s warm; B-spline scenes most): 25-30 % fewer steps, by the order the
+    runs happened in, not by their method (suite_tuning.md)."""
+    warm = run.parent.parent / "warm-up" / run.name
+    _run([sys.executable, "-m", "srvol", "train", str(scene), "--out", str(warm), "--sr", sr,
+          "--iters", str(WARM_UP_ITERS), "--compile", "on", *extra, "--quiet", "--force"])
+
+
 def train_and_eval(scene: Path, run: Path, sr: str, args, extra: tuple[str, ...] = (),
                    eval_extra: tuple[str, ...] = ()) -> dict:
     """One variant's row: train and evaluate unless done before (--collect: never train). Keys of
@@ -81,6 +95,8 @@ def train_and_eval(scene: Path, run: Path, sr: str, args, extra: tuple[str, ...]
     summary, metrics = run / "train_summary.json", run / "metrics.json"
     try:
         if not summary.is_file() and not args.collect:
+            if not args.iters and args.warm_up:
+                warm_compile_cache(scene, run, sr, extra)
             _run([sys.executable, "-m", *train])
         if summary.is_file() and not metrics.is_file() and not args.collect:
             _run([sys.executable, "-m", *ev])
@@ -265,9 +281,13 @@ def detail_lines(rows: list[dict]) -> list[str]:
 def write_table(rows: list[dict], args, out: Path, command: str) -> str:
     columns = ["bicubic", *args.variants]
     length = f"{args.iters} iterations" if args.iters else f"{args.budget:g} s"
+    warm = ("" if args.iters else
+            f"; an untimed {WARM_UP_ITERS}-step run of the same flags before each timed one warms torch.compile's "
+            "on-disk cache, so no run spends its budget compiling (runs from before that may have)" if args.warm_up
+            else "; no warm-up (--no-warm-up): a run may spend its budget compiling")
     lines = [f"# Scene suite: auto preset, {length} per run (2-core CPU)", "",
              f"Each run: OMP_NUM_THREADS={args.threads_per_run}, {args.runs_at_once} run(s) sharing the machine "
-             "at a time (two `bench_suite` processes with disjoint --scenes, then --collect).", "",
+             f"at a time (two `bench_suite` processes with disjoint --scenes, then --collect){warm}.", "",
              "HR metrics are means over each scene's held-out test views. bicubic: each test view's own LR image "
              "upsampled bicubically (a 2D reference that sees the test view, which no 3D method is given). Set "
              "means are over the scenes with every column; Vol-SR, run on a subset, is averaged over the scenes it "
@@ -334,6 +354,9 @@ def add_run_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--threads-per-run", default=os.environ.get("OMP_NUM_THREADS", "2"),
                     help="for the table's header: each run's OMP_NUM_THREADS (default: this process's)")
     ap.add_argument("--collect", action="store_true", help="train nothing: re-tabulate the runs already in --work")
+    ap.add_argument("--no-warm-up", dest="warm_up", action="store_false",
+                    help="skip the untimed 40-step run before each timed one (default: warm torch.compile's "
+                         "on-disk cache first, so no timed run spends its budget compiling)")
     ap.add_argument("--synth", default="", help="extra `srvol synth` flags for every scene, e.g. "
                                                 "--synth='--lr 24x18 --views 4 --test-views 1' (cached apart)")
     ap.add_argument("--work", type=Path, default=WORK / "suite", help="scenes and runs (default bench/work/suite)")

@@ -32,6 +32,28 @@ def test_suite_bench_tabulates_two_tiny_scenes_and_reuses_its_runs(tmp_path):
     assert json.loads((results / "suite_table.json").read_text()) == rows
 
 
+def test_a_timed_run_starts_after_an_untimed_warm_up_of_the_same_flags(tmp_path, monkeypatch):
+    """torch.compile's cache is warmed by 40 steps of the same scene, SR model and flags in a throwaway
+    folder, so the 600 s run does not spend its budget compiling; --no-warm-up and --iters runs skip it."""
+    import argparse
+
+    calls = []
+    monkeypatch.setattr(bench_suite, "_run", lambda cmd: calls.append(cmd) or (0.0, 0.0))
+    run = tmp_path / "runs" / "cup_auto_gaussian_600s_x0.5"
+    args = argparse.Namespace(iters=0, budget=600.0, warm_up=True, collect=False)
+    row = bench_suite.train_and_eval(tmp_path / "scenes" / "cup", run, "gaussian", args, ("--capacity", "0.5"))
+    assert row["missing"]  # the fake trained nothing
+    warm, timed = calls
+    assert warm[warm.index("--out") + 1] == str(tmp_path / "warm-up" / run.name)
+    assert warm[warm.index("--iters") + 1] == "40" and warm[warm.index("--compile") + 1] == "on"
+    assert warm[warm.index("--sr") + 1] == "gaussian" and warm[warm.index("--capacity") + 1] == "0.5"
+    assert timed[timed.index("--out") + 1] == str(run) and timed[timed.index("--time-budget") + 1] == "600"
+    calls.clear()
+    bench_suite.train_and_eval(tmp_path / "scenes" / "cup", run, "gaussian",
+                               argparse.Namespace(iters=0, budget=600.0, warm_up=False, collect=False))
+    assert len(calls) == 1 and "--time-budget" in calls[0]
+
+
 def test_stage2_swing_is_the_largest_distance_from_the_running_median(tmp_path):
     """Stage-2 PSNRs 30, 31, 30, 36 (stage 1 ignored): after the first 10 % (none of 4 lines), the running
     medians are 30, 30.5, 30, 30.5, so the distances are 0, 0.5, 0, 5.5 -> 5.5 dB."""
