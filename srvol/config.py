@@ -76,7 +76,7 @@ class TrainConfig:
     (geometrically, on top of the run's decay), so the surface settles rather than moving with each
     step's few hundred rays to the end (:func:`srvol.train.geometry_tail`); 1 = off (the paper)."""
     stage2_geometry_lr: float = 0.0
-    """Stage 2: the SDF goes on learning at this share of the rate it ended stage 1 with, under stage
+    """Stage 2: the SDF goes on learning at this multiple of the rate it ended stage 1 with, under stage
     1's terms but the mask's (stage 2 draws in-mask pixels only; beta stays frozen); 0 = the geometry
     is frozen (the paper)."""
     photometric_clip: float = 0.0

@@ -50,8 +50,8 @@ BETA_ANNEAL = 0.3
 GEOMETRY_LR_TAIL = 0.1
 """auto: the further factor the SDF's learning rates fall by over the second half of stage 1."""
 
-STAGE2_GEOMETRY_LR = 1.0
-"""auto: stage 2's SDF learning rate, as a share of the one stage 1 ended with (0 = frozen, the paper)."""
+STAGE2_GEOMETRY_LR = 3.0
+"""auto: stage 2's SDF learning rate, times the one stage 1 ended with (0 = frozen, the paper)."""
 
 THIN_SHARE = 0.03
 """auto: masks with at least this share of their pixels in parts narrower than the locating
@@ -283,12 +283,14 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    "scenes, 600 s, side by side with auto: stool 44.14 dB, 4.15 deg vs 43.17, 4.48; airplane 43.71, "
                    "3.42 vs 43.17, 4.64; suite_tuning.md)")
     cfg = replace(cfg, stage2_geometry_lr=STAGE2_GEOMETRY_LR)
-    reasons.append(f"stage 2 refines the SDF with the BRDF, at x{STAGE2_GEOMETRY_LR:g} of the rate stage 1 ended with "
+    reasons.append(f"stage 2 refines the SDF with the BRDF, at x{STAGE2_GEOMETRY_LR:g} the rate stage 1 ended with "
                    "(--stage2-geometry-lr 0 = frozen, the paper's): a glossy lobe needs the surface under it to a "
                    "fraction of a degree, and frozen, the BRDF widens its lobes to fit the surface it has. Tuning set, "
-                   "600 s, against the suite table's auto: HR PSNR +0.44 dB on the mean (dark +1.26, shiny +1.03, stool "
-                   "+0.95, glossy +0.17, torus +0.17, bumpy -0.04, airplane -0.49, within its 1.4 dB spread), normals "
-                   "-0.23 deg; a stage-2 step takes 1.3-1.4x as long (suite_tuning.md)")
+                   "600 s, x1 against frozen: HR PSNR +0.44 dB on the mean (dark +1.26, shiny +1.03, stool +0.95, "
+                   "glossy +0.17, torus +0.17, bumpy -0.04, airplane -0.49, within its 1.4 dB spread), normals -0.23 "
+                   "deg, a stage-2 step 1.3-1.4x as long; x3 against x1, side by side: stool +0.93 dB, shiny +0.49, "
+                   "glossy +0.23, bumpy +0.02, dark -0.24 (mean +0.29), normals -0.11, -0.15, -0.49, -0.02, -0.02 "
+                   "deg (suite_tuning.md)")
     reasons.append("photometric L1 on linear values (--photometric-clip 1 takes photo pixels at or past white as "
                    "saturated, as a sensor and the HR metric clip them): tuning scenes, 600 s, against auto side by "
                    "side: shiny +1.33 dB, glossy -0.74, airplane -1.47 (against an earlier run; its spread is ~1.4 "

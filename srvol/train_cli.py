@@ -61,8 +61,8 @@ def add_parser(sub) -> None:
                         "(default 0 = linear values; tuning set: shiny +1.3 dB, glossy -0.7, "
                         "airplane -1.5, so auto leaves it off; bench/results/suite_tuning.md)")
     p.add_argument("--stage2-geometry-lr", type=float, metavar="F",
-                   help="stage 2: the SDF goes on learning at F, 0..1, times the rate stage 1 ended with, so the "
-                        "surface under each highlight moves with the BRDF (auto 1; fast, paper 0 = frozen)")
+                   help="stage 2: the SDF goes on learning at F, 0..10, times the rate stage 1 ended with, so the "
+                        "surface under each highlight moves with the BRDF (auto 3; fast, paper 0 = frozen)")
     p.add_argument("--stage2-importance", type=float, metavar="S",
                    help="stage 2: draw this share, 0..0.9, of the pixels in proportion to an error map of the "
                         "training views (the flash highlights left to fit), the rest uniformly, each weighted so "
@@ -239,7 +239,7 @@ def build_config(scene, args):
     if args.geometry_lr_tail is not None:
         changes["geometry_lr_tail"] = _in_range(args.geometry_lr_tail, "--geometry-lr-tail", 1.0, least=0.001)
     if args.stage2_geometry_lr is not None:
-        changes["stage2_geometry_lr"] = _in_range(args.stage2_geometry_lr, "--stage2-geometry-lr", 1.0)
+        changes["stage2_geometry_lr"] = _in_range(args.stage2_geometry_lr, "--stage2-geometry-lr", 10.0)
     if args.stage2_importance is not None:
         changes["stage2_importance"] = _in_range(args.stage2_importance, "--stage2-importance", 0.9)
     if args.lattice_cell is not None:

@@ -300,7 +300,7 @@ def test_finest_material_cell_follows_the_psf_passband():
 
 
 def test_cli_capacity_and_sampler_errors_are_one_line(default_scene, tmp_path):
-    for args in (("--capacity", "0"), ("--capacity", "2", "--preset", "paper"), ("--stage2-geometry-lr", "2")):
+    for args in (("--capacity", "0"), ("--capacity", "2", "--preset", "paper"), ("--stage2-geometry-lr", "20")):
         p = _srvol("train", str(default_scene), "--out", str(tmp_path / "r"), "--iters", "1", *args)
         _, err = p.communicate(timeout=60)
         assert p.returncode == 2 and err.count("\n") == 1 and args[0] in err
@@ -655,7 +655,7 @@ def test_auto_lets_the_sdf_learn_in_stage_2_and_says_so_while_fast_and_paper_fre
     from srvol.presets import STAGE2_GEOMETRY_LR
 
     cfg = auto_config(load_scene(default_scene), "gaussian", 600.0)
-    assert cfg.stage2_geometry_lr == STAGE2_GEOMETRY_LR == 1.0
+    assert cfg.stage2_geometry_lr == STAGE2_GEOMETRY_LR == 3.0
     assert fast_config().stage2_geometry_lr == paper_config().stage2_geometry_lr == 0.0
     assert any("stage 2 refines the SDF" in r for r in cfg.reasons)
 
