@@ -28,6 +28,7 @@ import torch
 import trimesh
 
 from srvol.checkpoint import load_model
+from srvol.synth.surfaces import AnalyticSurface
 from srvol.config import read_run_config, sampler_of_stage
 from srvol.data import load_scene
 from srvol.errors import SrvolError
@@ -76,6 +77,7 @@ def main(argv=None) -> None:
     cfg = read_run_config(args.run).train
     fields, _ = load_model(args.run)
     surface = get_scene(args.name).make_surface()
+    analytic = isinstance(surface, AnalyticSurface)  # a mesh's SDF (trimesh's proximity) needs rtree: face normals
     scene = load_scene(scene_dir)
 
     def region(p: np.ndarray) -> np.ndarray:
@@ -92,7 +94,7 @@ def main(argv=None) -> None:
           f"p10 {np.percentile(d[sel], 10):+.5f}, p90 {np.percentile(d[sel], 90):+.5f}")
     with torch.enable_grad():
         _, g = fields.sdf_and_gradient(x, create_graph=False)
-        if hasattr(surface, "sdf"):
+        if analytic:
             xd = torch.tensor(pts, dtype=torch.float64, requires_grad=True)
             (gt_g,) = torch.autograd.grad(surface.sdf(xd).sum(), xd)
             n_gt = torch.nn.functional.normalize(gt_g, dim=-1).numpy()
@@ -112,7 +114,7 @@ def main(argv=None) -> None:
     intensity = torch.tensor(scene.info.light_intensity, dtype=torch.float32)
     own_sdf, own_material = fields.sdf_net, fields.material
     arms = [("learned fields", own_sdf, own_material), ("learned geometry + GT material", own_sdf, gt_material)]
-    if hasattr(surface, "sdf"):
+    if analytic:
         arms.append(("GT geometry + GT material", _GtSdf(surface.sdf), gt_material))
     for cell in (float(c) for c in args.cells.split(",")):
         c = replace(cfg, lattice_cell=cell)
