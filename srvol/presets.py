@@ -289,8 +289,8 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    "600 s, x1 against frozen: HR PSNR +0.44 dB on the mean (dark +1.26, shiny +1.03, stool +0.95, "
                    "glossy +0.17, torus +0.17, bumpy -0.04, airplane -0.49, within its 1.4 dB spread), normals -0.23 "
                    "deg, a stage-2 step 1.3-1.4x as long; x3 against x1, side by side: stool +0.93 dB, shiny +0.49, "
-                   "glossy +0.23, bumpy +0.02, dark -0.24 (mean +0.29), normals -0.11, -0.15, -0.49, -0.02, -0.02 "
-                   "deg (suite_tuning.md)")
+                   "glossy +0.23, bumpy +0.02, torus -0.02, dark -0.24 (mean +0.24), normals better or level on all "
+                   "six (-0.13 deg on the mean; suite_tuning.md)")
     reasons.append("photometric L1 on linear values (--photometric-clip 1 takes photo pixels at or past white as "
                    "saturated, as a sensor and the HR metric clip them): tuning scenes, 600 s, against auto side by "
                    "side: shiny +1.33 dB, glossy -0.74, airplane -1.47 (against an earlier run; its spread is ~1.4 "
