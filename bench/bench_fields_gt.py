@@ -28,7 +28,6 @@ import torch
 import trimesh
 
 from srvol.checkpoint import load_model
-from srvol.synth.surfaces import AnalyticSurface
 from srvol.config import read_run_config, sampler_of_stage
 from srvol.data import load_scene
 from srvol.errors import SrvolError
@@ -37,6 +36,7 @@ from srvol.pixels import PixelBank, sample_pixels
 from srvol.psf import PsfSampler, SRMode
 from srvol.render import volume_render
 from srvol.synth.scenes import get_scene
+from srvol.synth.surfaces import AnalyticSurface
 from srvol.types import SurfaceMaterial
 
 
@@ -77,7 +77,9 @@ def main(argv=None) -> None:
     cfg = read_run_config(args.run).train
     fields, _ = load_model(args.run)
     surface = get_scene(args.name).make_surface()
-    analytic = isinstance(surface, AnalyticSurface)  # a mesh's SDF (trimesh's proximity) needs rtree: face normals
+    # GT normals and the GT-geometry arm from an analytic SDF only: a mesh's SDF goes through trimesh's
+    # proximity query, which needs rtree (not pinned); a mesh's points take their sampled faces' normals
+    analytic = isinstance(surface, AnalyticSurface)
     scene = load_scene(scene_dir)
 
     def region(p: np.ndarray) -> np.ndarray:

@@ -72,14 +72,19 @@ WARM_UP_ITERS = 40
 """Steps of the untimed run before each timed one: both stages' queries compile (stage 2 begins at 70 %)."""
 
 
+def train_command(scene: Path, out: Path, sr: str, length: list[str], extra: tuple[str, ...]) -> list[str]:
+    """`srvol train` of one variant into ``out``: ``length`` (--iters N or --time-budget S) and ``extra`` flags."""
+    return ["srvol", "train", str(scene), "--out", str(out), "--sr", sr, *length, *extra, "--quiet", "--force"]
+
+
 def warm_compile_cache(scene: Path, run: Path, sr: str, extra: tuple[str, ...]) -> None:
     """Compile the run's field queries into torch's on-disk cache with a short untimed run of the same
     flags, so the timed run starts warm. Cold, compiling took 110-130 s of a 600 s budget with two
     runs compiling at once (35 s warm; B-spline scenes most): 25-30 % fewer steps, by the order the
     runs happened in, not by their method (suite_tuning.md)."""
     warm = run.parent.parent / "warm-up" / run.name
-    _run([sys.executable, "-m", "srvol", "train", str(scene), "--out", str(warm), "--sr", sr,
-          "--iters", str(WARM_UP_ITERS), "--compile", "on", *extra, "--quiet", "--force"])
+    _run([sys.executable, "-m", *train_command(scene, warm, sr, ["--iters", str(WARM_UP_ITERS), "--compile", "on"],
+                                               extra)])
 
 
 def train_and_eval(scene: Path, run: Path, sr: str, args, extra: tuple[str, ...] = (),
@@ -88,8 +93,7 @@ def train_and_eval(scene: Path, run: Path, sr: str, args, extra: tuple[str, ...]
     RUN_KEYS plus train PSNR, iterations, parameters, peak memory and the commands; 'error' or
     'missing' when there is no result. ``extra``: more `srvol train` flags (e.g. --capacity),
     ``eval_extra``: more `srvol eval` flags."""
-    train = ["srvol", "train", str(scene), "--out", str(run), "--sr", sr, *length_args(args), *extra, "--quiet",
-             "--force"]
+    train = train_command(scene, run, sr, length_args(args), extra)
     ev = ["srvol", "eval", str(run), *eval_extra]
     row: dict = {"command": " ".join(train) + " && " + " ".join(ev)}
     summary, metrics = run / "train_summary.json", run / "metrics.json"
@@ -355,8 +359,8 @@ def add_run_arguments(ap: argparse.ArgumentParser) -> None:
                     help="for the table's header: each run's OMP_NUM_THREADS (default: this process's)")
     ap.add_argument("--collect", action="store_true", help="train nothing: re-tabulate the runs already in --work")
     ap.add_argument("--no-warm-up", dest="warm_up", action="store_false",
-                    help="skip the untimed 40-step run before each timed one (default: warm torch.compile's "
-                         "on-disk cache first, so no timed run spends its budget compiling)")
+                    help=f"skip the untimed {WARM_UP_ITERS}-step run before each timed one (default: warm "
+                         "torch.compile's on-disk cache first, so no timed run spends its budget compiling)")
     ap.add_argument("--synth", default="", help="extra `srvol synth` flags for every scene, e.g. "
                                                 "--synth='--lr 24x18 --views 4 --test-views 1' (cached apart)")
     ap.add_argument("--work", type=Path, default=WORK / "suite", help="scenes and runs (default bench/work/suite)")
