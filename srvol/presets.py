@@ -125,9 +125,11 @@ def recoverable_cell_hr_px(sigma_hr_px: float) -> float:
 
 SDF_CELL_HR_PX = 12
 """auto: the finest SDF grid's cell in HR pixels (finest level 2 / (12 x footprint), a multiple of 4 in
-16..64). Finer grids fit the Monte Carlo noise of a few hundred rays per step into the surface as grain,
-which breaks up glossy highlights (tuning scene shiny, 600 s: 6 HR px 30.40 dB, 12 HR px with the smaller
-heads and table below 32.62 dB)."""
+16..64). A finer surface fits the training views better and renders held-out views worse: it bends under
+each training view's highlights as grain, which breaks up the glossy highlights of a new view (tuning
+scene shiny, 600 s: 6 HR px with twice the heads 30.40 dB against 32.62; with today's stage 1, which has
+no PSF noise, 8 HR px fitted the log's probe pixels at 35.1 dB against 29.2 at the end and scored
+31.88 dB against 32.70 on the held-out views; bumpy 39.06 against 39.20; suite_tuning.md)."""
 
 MAT_CELL_DETAILS = 1.0
 """auto: the finest material cell spans up to this many recoverable details (:func:`recoverable_cell_hr_px`,
@@ -203,7 +205,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     reasons.append(f"geometry sized for what {hr:.4f}-unit pixels can supervise in minutes: SDF cell "
                    f"~{SDF_CELL_HR_PX} HR pixels, {AUTO_HEAD_WIDTH}-wide heads -- on the tuning set (600 s) twice "
                    "this (SDF cell 6 HR px, 64-wide heads) fitted grain into the surface: shiny 30.40 dB HR PSNR, "
-                   "5.1 deg vs 32.62, 3.8 deg; bumpy 37.09 vs 36.78; stool 40.21 vs 39.60 (suite_tuning.md)")
+                   "5.1 deg vs 32.62, 3.8 deg; bumpy 37.09 vs 36.78; stool 40.21 vs 39.60; an 8 HR px cell fitted "
+                   "shiny's training pixels (the log's probe) at 35.1 dB against 29.2 and scored 31.88 dB against "
+                   "32.70 on the held-out views, bumpy 39.06 against 39.20 (suite_tuning.md)")
     if capacity != 1.0:
         reasons.append(f"capacity x{capacity:g} of what the scene needs (study setting)")
     reasons.append(f"material hash grid finest level {mat_max}, 2^{table_log2} entries per level (cell "
