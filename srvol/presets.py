@@ -127,8 +127,8 @@ SDF_CELL_HR_PX = 12
 """auto: the finest SDF grid's cell in HR pixels (finest level 2 / (12 x footprint), a multiple of 4 in
 16..64). A finer surface fits the training views better and renders held-out views worse: it bends under
 each training view's highlights as grain, which breaks up the glossy highlights of a new view (tuning
-scene shiny, 600 s: 6 HR px with twice the heads 30.40 dB against 32.62; with today's stage 1, which has
-no PSF noise, 8 HR px fitted the log's probe pixels at 35.1 dB against 29.2 at the end and scored
+scene shiny, 600 s: 6 HR px with twice the heads 30.40 dB against 32.62; with stage 1 on pixel-centre rays,
+free of PSF noise, 8 HR px fitted the log's probe pixels at 35.1 dB against 29.2 at the end and scored
 31.88 dB against 32.70 on the held-out views; bumpy 39.06 against 39.20; suite_tuning.md)."""
 
 MAT_CELL_DETAILS = 1.0
