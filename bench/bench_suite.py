@@ -146,10 +146,11 @@ def run_rules(run: Path) -> str:
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:
     """A variant's row from the table before (``rows``: :func:`previous_rows`), for a run whose folder
-    is not on this machine (runs stay in the ignored work folder); its rules say so."""
+    is not on this machine (runs stay in the ignored work folder); its rules say so. A row that had no
+    result (not run, or failed) is carried as it was, so the table still lists that run."""
     old = next((r["variants"].get(sr) for r in rows if r["scene"] == name), None)
     if not old or "psnr_hr" not in old:
-        return None
+        return old
     rules = old.get("rules", "-")
     return {**old, "rules": rules if rules.endswith("(earlier run)") else f"{rules} (earlier run)"}
 

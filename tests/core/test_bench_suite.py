@@ -70,21 +70,25 @@ def test_stage2_swing_is_the_largest_distance_from_the_running_median(tmp_path):
 
 def test_collect_carries_over_committed_rows_whose_runs_are_not_here(tmp_path):
     """Runs live in the ignored work folder: a --collect on another machine keeps the committed
-    table's rows for the runs it lacks (their rules marked); a run it never had stays out."""
+    table's rows for the runs it lacks (their rules marked), and its not-run rows; a run it never
+    had stays out."""
     results = tmp_path / "results"
     results.mkdir()
     old = {"scene": "cup", "set": "report", "lr": "160x120", "psf_sigma": 0.45, "views": "40+6",
            "bicubic": {"psnr_hr": 42.3, "psnr_hr_masked": 36.4},
            "variants": {"gaussian": {"command": "srvol train ...", "psnr_hr": 35.3, "psnr_hr_masked": 29.6,
                                         "iterations": 4889, "train_seconds": 596.5, "parameters": 4892718,
-                                        "rules": "beta cap 0.0038"}}}
+                                        "rules": "beta cap 0.0038"},
+                        "box": {"command": "srvol train ... --sr box", "missing": True}}}
     (results / "suite_table.json").write_text(json.dumps([old]))
-    args = ["--collect", "--scenes", "cup,die", "--work", str(tmp_path / "work"), "--results", str(results)]
+    args = ["--collect", "--scenes", "cup,die", "--variants", "none,gaussian,box", "--work", str(tmp_path / "work"), "--results", str(results)]
     assert bench_suite.main(args) == 0
     rows = {r["scene"]: r for r in json.loads((results / "suite_table.json").read_text())}
     cup = rows["cup"]["variants"]
     assert cup["gaussian"]["psnr_hr"] == 35.3 and cup["gaussian"]["rules"] == "beta cap 0.0038 (earlier run)"
     assert "none" not in cup and rows["cup"]["bicubic"]["psnr_hr"] == 42.3
+    # a run the table listed as not run stays listed, with its command
+    assert cup["box"] == {"command": "srvol train ... --sr box", "missing": True}
     assert rows["die"]["variants"] == {}
     # collected again, the mark is not doubled
     assert bench_suite.main(args) == 0
