@@ -70,6 +70,10 @@ def add_parser(sub) -> None:
     p.add_argument("--lattice-cell", type=float,
                    help="lattice sampler: spacing of the shared rays in LR pixels, 0.05..1 (default 0.5; "
                         "1 / sr factor puts one ray on each HR pixel)")
+    p.add_argument("--lattice-patch", type=int, metavar="P",
+                   help="lattice sampler: side in LR pixels, 1..8, of the patch one shared lattice serves (default 4: "
+                        "a step's few hundred rays land in a few places; smaller patches spread them over more "
+                        "places at more rays per pixel)")
     p.add_argument("--stage2-fraction", type=float,
                    help="share of the run (time budget or --iters), 0..0.9, spent in stage 2 "
                         "(default: auto 0.3, fast 0.15, paper 0.1)")
@@ -244,6 +248,10 @@ def build_config(scene, args):
         changes["stage2_importance"] = _in_range(args.stage2_importance, "--stage2-importance", 0.9)
     if args.lattice_cell is not None:
         changes["lattice_cell"] = _in_range(args.lattice_cell, "--lattice-cell", 1.0, least=0.05, unit=" LR pixel")
+    if args.lattice_patch is not None:
+        if not 1 <= args.lattice_patch <= 8:
+            raise SrvolError(f"--lattice-patch must be 1..8 LR pixels, got {args.lattice_patch}")
+        changes["patch"] = args.lattice_patch
     if args.stage2_fraction is not None:
         changes["stage2_fraction"] = _in_range(args.stage2_fraction, "--stage2-fraction", 0.9)
     if args.psf_warmup is not None:

@@ -23,7 +23,7 @@ from srvol.config import (TrainConfig, describe_psf_rays, describe_ray_samples, 
 from srvol.presets import (MTF_FLOOR, STAGE2_SAMPLER, auto_config, fast_config, paper_config,
                            recoverable_cell_hr_px)
 from srvol.losses import compute_loss
-from srvol.pixels import sample_pixels
+from srvol.pixels import patches_per_step, sample_pixels
 from srvol.psf import PsfSampler, SRMode, lattice_size
 from srvol.render import SamplerConfig
 from srvol.train import check_not_collapsed, train
@@ -362,6 +362,16 @@ def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_sc
     assert (psf_sampler_of_stage(c, 1), psf_sampler_of_stage(c, 2), c.stage2_fraction) == ("mc", "antithetic", 0.3)
     with pytest.raises(SrvolError, match="--stage2-fraction"):
         cfg_of("--stage2-fraction", "1.5")
+    # --lattice-patch 2: each lattice serves 2x2 pixels (6x6 rays at sigma 0.375), so the same rays
+    # per step land in 19 places instead of 7
+    small = cfg_of("--lattice-patch", "2")
+    k2 = lattice_size(2, small.lattice_cell, psf.psf.sigma_lr_px)
+    assert (small.patch, k2, patches_per_step(small, psf, 2), patches_per_step(cfg, psf, 2)) == (2, 6, 19, 7)
+    patches = sample_pixels(bank, small, psf, 2, torch.Generator().manual_seed(0))
+    assert (len(patches.target), patches.n_rays) == (19 * 4, 19 * 36)
+    for bad in ("0", "9"):
+        with pytest.raises(SrvolError, match="--lattice-patch"):
+            cfg_of("--lattice-patch", bad)
 
 
 def test_stage2_traces_fewer_samples_per_ray_for_every_sr_mode(default_scene):
