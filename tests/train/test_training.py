@@ -349,6 +349,8 @@ def test_auto_gaussian_refines_the_brdf_on_shared_lattices_in_stage_2(default_sc
     assert two.n_rays == len(two.target) // cfg.patch ** 2 * k * k
     none = auto_config(scene, "none", 60.0)
     assert abs(two.n_rays - none.batch_stage2) <= 0.2 * none.batch_stage2
+    # the mask term: half as many out-of-mask pixels as the step's in-mask ones, SR (centre rays) as noSR
+    assert cfg.batch_out == none.batch_out == 256
     assert "stage 2: shared" in describe_psf_rays(cfg, scene.info.psf)
 
     ap = argparse.ArgumentParser()
