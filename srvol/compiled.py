@@ -45,3 +45,16 @@ class CompiledQueries:
 
     def material(self, x: Tensor) -> tuple[Tensor, Tensor]:
         return self._call("material", x)
+
+
+COMPILE_MIN_SECONDS = 120.0
+COMPILE_MIN_ITERS = 1000
+"""Below these a training run would spend a large share of itself compiling (~30 s on first use)."""
+
+
+def compile_training(choice: str, iters: int, time_budget: float) -> bool:
+    """``--compile`` on, off, or (auto) on for a run long enough to repay the compiling: ``iters``
+    steps, or ``time_budget`` seconds where iters is 0."""
+    if choice != "auto":
+        return choice == "on"
+    return iters >= COMPILE_MIN_ITERS if iters else time_budget >= COMPILE_MIN_SECONDS

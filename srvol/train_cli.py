@@ -10,6 +10,7 @@ from pathlib import Path
 
 import torch
 
+from srvol.compiled import COMPILE_MIN_ITERS, COMPILE_MIN_SECONDS, compile_training
 from srvol.encodings import SDF_INTERPOLATIONS
 from srvol.errors import SrvolError
 
@@ -71,9 +72,8 @@ def add_parser(sub) -> None:
                    help="lattice sampler: spacing of the shared rays in LR pixels, 0.05..1 (default 0.5; "
                         "1 / sr factor puts one ray on each HR pixel)")
     p.add_argument("--lattice-patch", type=int, metavar="P",
-                   help="lattice sampler: side in LR pixels, 1..8, of the patch one shared lattice serves (default 4: "
-                        "a step's few hundred rays land in a few places; smaller patches spread them over more "
-                        "places at more rays per pixel)")
+                   help="lattice sampler: side in LR pixels, 1..8, of the patch one lattice serves (default 4; "
+                        "smaller patches spread a step's rays over more places, at more rays per pixel)")
     p.add_argument("--stage2-fraction", type=float,
                    help="share of the run (time budget or --iters), 0..0.9, spent in stage 2 "
                         "(default: auto 0.3, fast 0.15, paper 0.1)")
@@ -249,9 +249,7 @@ def build_config(scene, args):
     if args.lattice_cell is not None:
         changes["lattice_cell"] = _in_range(args.lattice_cell, "--lattice-cell", 1.0, least=0.05, unit=" LR pixel")
     if args.lattice_patch is not None:
-        if not 1 <= args.lattice_patch <= 8:
-            raise SrvolError(f"--lattice-patch must be 1..8 LR pixels, got {args.lattice_patch}")
-        changes["patch"] = args.lattice_patch
+        changes["patch"] = int(_in_range(args.lattice_patch, "--lattice-patch", 8, least=1, unit=" LR pixels"))
     if args.stage2_fraction is not None:
         changes["stage2_fraction"] = _in_range(args.stage2_fraction, "--stage2-fraction", 0.9)
     if args.psf_warmup is not None:
@@ -288,7 +286,7 @@ def build_config(scene, args):
         if cfg.fields.kind != "grid":
             raise SrvolError(f"--sdf-interpolation applies to the grid presets (fast, auto), not {cfg.preset}")
         changes["fields"] = replace(cfg.fields, sdf_interpolation=args.sdf_interpolation)
-    changes["compile"] = _compile(args, changes.get("iters", cfg.iters))
+    changes["compile"] = compile_training(args.compile, changes.get("iters", cfg.iters), args.time_budget)
     capture = _capture_terms(scene, args, cfg.capture)
     if capture != cfg.capture:
         changes["capture"] = capture
@@ -385,17 +383,6 @@ def _run_train(args, shard=None) -> int:
           f"(train PSNR {summary.final_psnr:.2f} dB) -> {run}")
     return 0
 
-
-COMPILE_MIN_SECONDS = 120.0
-COMPILE_MIN_ITERS = 1000
-"""Below these a run would spend a large share of itself compiling (~30 s on first use)."""
-
-
-def _compile(args: argparse.Namespace, iters: int) -> bool:
-    """--compile: on, off, or (auto) on for runs long enough to repay the compiling."""
-    if args.compile != "auto":
-        return args.compile == "on"
-    return iters >= COMPILE_MIN_ITERS if iters else args.time_budget >= COMPILE_MIN_SECONDS
 
 
 def _peak_rss_gib() -> float | None:
