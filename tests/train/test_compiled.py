@@ -1,13 +1,12 @@
 """The SDF's gradient written out (one backward for a loss on the normals, so the query compiles),
 and the compiled queries: the same numbers as eager, and eager again where compiling fails."""
-import argparse
 
 import pytest
 import torch
 
 import srvol.compiled as compiled
 from srvol.fields import FieldConfig, SceneFields
-from srvol.train_cli import COMPILE_MIN_ITERS, COMPILE_MIN_SECONDS, _compile
+from srvol.compiled import COMPILE_MIN_ITERS, COMPILE_MIN_SECONDS, compile_training
 
 
 def _busy_fields(activation: str, interpolation: str = "smoothstep") -> SceneFields:
@@ -98,14 +97,12 @@ def test_a_failing_compiler_leaves_eager_queries_and_one_warning(monkeypatch, ca
 
 
 def test_compiling_is_on_for_runs_long_enough_to_repay_it():
-    def args(compile="auto", budget=600.0):
-        return argparse.Namespace(compile=compile, time_budget=budget)
-
-    assert _compile(args(), iters=0)  # a 600 s run
-    assert not _compile(args(budget=COMPILE_MIN_SECONDS - 1), iters=0)
-    assert not _compile(args(), iters=40)  # a short fixed-iteration run: the budget is not what bounds it
-    assert _compile(args(), iters=COMPILE_MIN_ITERS)
-    assert _compile(args("on"), iters=40) and not _compile(args("off"), iters=0)
+    assert compile_training("auto", iters=0, time_budget=600.0)  # a 600 s run
+    assert not compile_training("auto", iters=0, time_budget=COMPILE_MIN_SECONDS - 1)
+    # a short fixed-iteration run: the budget is not what bounds it
+    assert not compile_training("auto", iters=40, time_budget=600.0)
+    assert compile_training("auto", iters=COMPILE_MIN_ITERS, time_budget=600.0)
+    assert compile_training("on", iters=40, time_budget=0.0) and not compile_training("off", iters=0, time_budget=600.0)
 
 
 def test_the_warm_up_before_each_stage_leaves_the_runs_draws_untouched(default_scene, tmp_path, monkeypatch):
