@@ -384,7 +384,6 @@ def _run_train(args, shard=None) -> int:
     return 0
 
 
-
 def _peak_rss_gib() -> float | None:
     """Peak resident memory of this process so far (GiB); None where the OS does not say."""
     try:

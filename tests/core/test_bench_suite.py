@@ -81,7 +81,8 @@ def test_collect_carries_over_committed_rows_whose_runs_are_not_here(tmp_path):
                                         "rules": "beta cap 0.0038"},
                         "box": {"command": "srvol train ... --sr box", "missing": True}}}
     (results / "suite_table.json").write_text(json.dumps([old]))
-    args = ["--collect", "--scenes", "cup,die", "--variants", "none,gaussian,box", "--work", str(tmp_path / "work"), "--results", str(results)]
+    args = ["--collect", "--scenes", "cup,die", "--variants", "none,gaussian,box",
+            "--work", str(tmp_path / "work"), "--results", str(results)]
     assert bench_suite.main(args) == 0
     rows = {r["scene"]: r for r in json.loads((results / "suite_table.json").read_text())}
     cup = rows["cup"]["variants"]
