@@ -216,15 +216,17 @@ def build_config(scene, args):
             raise SrvolError(f"--psf-samples {args.psf_samples}: must be >= 1")
         changes["psf_samples"] = args.psf_samples
         batch_in = cfg.batch_in
+        centre = args.psf_sampler == "centre"  # stage 1 on one centre ray per pixel, N times the pixels
         if args.preset == "auto" and args.sr == "gaussian":  # auto keeps its rays per step
-            batches = auto_batches(args.psf_samples)
+            batches = auto_batches(args.psf_samples, centre_rays=centre)
             batch_in = batches.batch_in
             changes.update(batches._asdict())
-            if cfg.psf_sampler == "centre":  # N PSF rays per pixel asked for stage 1 too
+            if cfg.psf_sampler == "centre" and not centre:  # N PSF rays per pixel asked for stage 1 too
                 changes["psf_sampler"] = "antithetic"
         if args.sr == "gaussian":
-            changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {batch_in} in-mask "
-                                                f"pixels per step x {args.psf_samples} rays",)
+            per_step = (f"{batch_in * args.psf_samples} in-mask pixels per stage-1 step, one centre ray each"
+                        if centre else f"{batch_in} in-mask pixels per step x {args.psf_samples} rays")
+            changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {per_step}",)
     if args.batch_scale is not None:
         if not (math.isfinite(args.batch_scale) and 0.25 <= args.batch_scale <= 64):
             raise SrvolError(f"--batch-scale {args.batch_scale}: must be between 0.25 and 64")

@@ -324,6 +324,14 @@ def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
     derived = auto_config(scene, "gaussian", 60.0)
     assert cfg.batch_in * 4 == derived.batch_in * 2 and cfg.batch_stage2 * 4 == derived.batch_stage2 * 2
     assert cfg.reasons[-1] == f"--psf-samples 4 (asked): {cfg.batch_in} in-mask pixels per step x 4 rays"
+    # with --psf-sampler centre, stage 1 traces 4 x batch_in centre rays, and the mask term draws half as
+    # many out-of-mask pixels as that, as auto's own centre rays do
+    centre = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "unused", "--psf-samples",
+                                                "4", "--psf-sampler", "centre"]))
+    assert (centre.psf_samples, centre.psf_sampler) == (4, "centre")
+    assert centre.batch_out == centre.batch_in * 4 // 2 == derived.batch_out
+    assert centre.reasons[-1] == (f"--psf-samples 4 (asked): {centre.batch_in * 4} in-mask pixels per stage-1 "
+                                  "step, one centre ray each")
     wide = replace(scene, info=replace(scene.info, psf_sigma_lr_px=0.75))
     assert auto_config(wide, "gaussian", 60.0).psf_samples == 2
 
