@@ -231,9 +231,20 @@ def set_means(rows: list[dict], columns: list[str], key: str) -> dict[str, dict[
     return out
 
 
+MIXED = " (mixed)"  # an SR - noSR whose two runs were not collected together (:func:`mixed_pair`)
+
+
 def fmt(v, spec: str = ".2f") -> str:
     """A table cell: ``v`` formatted, or '-' for a missing or non-finite value."""
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
+
+
+def mixed_pair(r: dict) -> bool:
+    """SR and noSR of scene row ``r`` come from different collections: one a run of this one, the other
+    carried over (``(earlier run)``, maybe another machine and an older auto), so their difference was
+    not measured side by side."""
+    rules = [r["variants"].get(c, {}).get("rules", "") for c in ("gaussian", "none")]
+    return all(rules) and len({x.endswith("(earlier run)") for x in rules}) == 2
 
 
 def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
@@ -248,7 +259,8 @@ def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
         sr, none, bic, vol = (psnr_of(r, c) for c in ("gaussian", "none", "bicubic", "box"))
         lines.append(f"| {r['scene']} | {r['set']} | {r.get('lr', '-')} | {fmt(r.get('psf_sigma'), '.3g')} | "
                      f"{r.get('views', '-')} | " + " | ".join(cells) + f" | {fmt(sr - bic, '+.2f')} | "
-                     f"{fmt(sr - none, '+.2f')} |" + (f" {fmt(sr - vol, '+.2f')} |" if box else ""))
+                     f"{fmt(sr - none, '+.2f')}{MIXED if mixed_pair(r) else ''} |"
+                     + (f" {fmt(sr - vol, '+.2f')} |" if box else ""))
     hr, masked = set_means(rows, columns, "psnr_hr"), set_means(rows, columns, "psnr_hr_masked")
     for name in ("tuning", "report"):
         cells = [f"{fmt(hr[name][c])} / {fmt(masked[name][c])}"
@@ -256,8 +268,9 @@ def summary_lines(rows: list[dict], columns: list[str]) -> list[str]:
         g, n, b = (hr[name].get(c, float("nan")) for c in ("gaussian", "none", "bicubic"))
         vol = [psnr_of(r, "gaussian") - psnr_of(r, "box") for r in rows if r["set"] == name]
         vol = [v for v in vol if math.isfinite(v)]
+        mixed = MIXED if any(mixed_pair(r) for r in rows if r["set"] == name) else ""
         lines.append(f"| **{name} mean** ({hr[name]['scenes']} scenes) | {name} | | | | " + " | ".join(cells)
-                     + f" | {fmt(g - b, '+.2f')} | {fmt(g - n, '+.2f')} |"
+                     + f" | {fmt(g - b, '+.2f')} | {fmt(g - n, '+.2f')}{mixed} |"
                      + (f" {fmt(float(np.mean(vol)) if vol else float('nan'), '+.2f')} |" if box else ""))
     return lines
 
@@ -306,7 +319,9 @@ def write_table(rows: list[dict], args, out: Path, command: str) -> str:
              "`L1 saturated at 1` a run whose photometric L1 takes photo pixels at or past white as saturated "
              "(rows without it: linear values, as before), "
              "`(earlier run)` a row carried over from "
-             "the table before (its run folder was not on the machine that collected this one). Reproduce: `srvol bench suite "
+             "the table before (its run folder was not on the machine that collected this one); `(mixed)` after "
+             "`SR - noSR`: one of the two runs is such an earlier run and the other is not, so the difference "
+             "spans collections (maybe machines and versions of auto), not a side-by-side pair. Reproduce: `srvol bench suite "
              + command + "` (resumable; each run's commands below).", "",
              *summary_lines(rows, columns), "", "## Every run", "", *detail_lines(rows), "", "Commands:", ""]
     lines += [f"- {r['scene']} {VARIANTS[sr]}: `{v['command']}`" for r in rows for sr, v in r["variants"].items()]

@@ -180,8 +180,10 @@ def auto_batches(psf_samples: int, centre_rays: bool = False) -> AutoBatches:
     pixels, and the paper's 700 rays per stage-2 step; never under 64 pixels. ``centre_rays``: stage 1
     traces one ray at each pixel's centre, ``psf_samples`` times the pixels (auto's SR), so the
     out-of-mask pixels are half of those (before, half of ``batch_in``: SR's stage 1 saw half of
-    noSR's out-of-mask pixels; tuning set, 600 s: airplane 44.87 and 43.89 dB, 3.55 and 3.45 deg
-    against 42.72-43.45 dB, 4.12-4.40 deg in three runs before; shiny and bumpy level)."""
+    noSR's out-of-mask pixels). Tuning set, 600 s, runs of each against runs of the other: airplane
+    43.84 dB over three (42.76-44.87) against 43.12 (42.72-43.45), shiny 32.25 over two against 32.87
+    over three, bumpy level: inside the runs' spread either way, so SR takes noSR's share and the two
+    differ in stage 2 alone."""
     ns = max(1, psf_samples)
     batch_in = int(max(64, min(512, 512 // ns)))
     pixels = batch_in * ns if centre_rays else batch_in  # in-mask pixels of a stage-1 step
@@ -275,9 +277,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     per_step = (f"{rays_per_step(cfg, 1)} per stage-1 step, one centre ray each" if cfg.psf_sampler == "centre"
                 else f"{batches.batch_in} per step x {ns} rays")
     reasons.append(f"{n_in} in-mask training pixels; {per_step} (stage 2: {rays_per_step(cfg, 2)} rays per step); "
-                   f"{cfg.batch_out} out-of-mask pixels per stage-1 step, half its in-mask pixels (tuning scene "
-                   "airplane, thin wings: 44.38 dB, 3.50 deg over two runs against 43.12, 4.22 with half as many; "
-                   "shiny, bumpy level; suite_tuning.md)")
+                   f"{cfg.batch_out} out-of-mask pixels per stage-1 step, half its in-mask pixels, as noSR "
+                   "(tuning set, 600 s, against half as many: airplane 43.84 vs 43.12 dB over three runs each, shiny "
+                   "32.25 vs 32.87, bumpy level -- inside the runs' spread; suite_tuning.md)")
     if read_normalization(scene.root) is not None:  # imported by srvol import
         cfg = replace(cfg, capture=AUTO_CAPTURE_TERMS)
         reasons.append(f"real-capture terms on ({AUTO_CAPTURE_TERMS.describe()}): an imported scene; ambient, pose "

@@ -119,3 +119,21 @@ def test_vol_sr_on_a_subset_does_not_narrow_the_other_means():
     assert lines[0].endswith("| SR - bicubic | SR - noSR | SR - Vol-SR |")
     assert lines[2].endswith("| +1.50 | +1.00 | +0.50 |")  # die: SR over bicubic, noSR, Vol-SR
     assert "37.00 / 29.00 (on 1)" in lines[-1] and lines[-1].endswith("| -1.75 | +0.50 | +0.50 |")
+
+
+def test_sr_over_nosr_from_two_collections_is_marked_mixed():
+    """SR rerun here, noSR carried over from an earlier collection (another machine, an older auto):
+    their difference is printed, marked, and so is the set mean it enters; a pair collected together
+    is not marked."""
+    from bench.bench_suite import summary_lines
+
+    def row(scene, sr_rules, none_rules):
+        return {"scene": scene, "set": "tuning", "bicubic": {"psnr_hr": 30.0, "psnr_hr_masked": 22.0},
+                "variants": {"none": {"psnr_hr": 31.0, "psnr_hr_masked": 23.0, "rules": none_rules},
+                             "gaussian": {"psnr_hr": 32.0, "psnr_hr_masked": 24.0, "rules": sr_rules}}}
+
+    together = summary_lines([row("bumpy", "beta cap 0.005", "beta cap 0.005")], ["bicubic", "none", "gaussian"])
+    assert together[2].endswith("| +2.00 | +1.00 |") and together[3].endswith("| +2.00 | +1.00 |")
+    apart = summary_lines([row("shiny", "beta cap 0.005", "beta cap 0.005 (earlier run)")],
+                          ["bicubic", "none", "gaussian"])
+    assert apart[2].endswith("| +2.00 | +1.00 (mixed) |") and apart[3].endswith("| +1.00 (mixed) |")
