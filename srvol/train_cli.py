@@ -190,8 +190,27 @@ def _capture_terms(scene, args, default):
     return terms_config(names, offset)
 
 
+def stage1_rays_asked(cfg, changes: dict, args) -> str:
+    """The reason line for an asked --psf-samples / --psf-sampler on a Gaussian PSF. auto keeps its rays
+    per step: its batches (``changes`` updated in place) follow the run's final stage-1 sampler -- N
+    centre rays per pixel's worth of pixels, or N PSF rays on each of fewer pixels -- and the out-of-mask
+    pixels are half the step's in-mask pixels either way."""
+    from srvol.presets import auto_batches
+
+    ns = changes.get("psf_samples", cfg.psf_samples)
+    centre = changes.get("psf_sampler", cfg.psf_sampler) == "centre"  # one centre ray per pixel, ns x the pixels
+    if args.preset == "auto":
+        changes.update(auto_batches(ns, centre_rays=centre)._asdict())
+    batch_in = changes.get("batch_in", cfg.batch_in)
+    asked = " ".join(f"{flag} {value}" for flag, value in (("--psf-samples", args.psf_samples),
+                                                             ("--psf-sampler", args.psf_sampler)) if value is not None)
+    per_step = (f"{batch_in * ns} in-mask pixels per stage-1 step, one centre ray each" if centre
+                else f"{batch_in} in-mask pixels per step x {ns} rays")
+    return f"{asked} (asked): {per_step}, {changes.get('batch_out', cfg.batch_out)} out-of-mask"
+
+
 def build_config(scene, args):
-    from srvol.presets import auto_batches, auto_config, fast_config, paper_config
+    from srvol.presets import auto_config, fast_config, paper_config
 
     if not (math.isfinite(args.capacity) and 0.1 <= args.capacity <= 8):
         raise SrvolError(f"--capacity {args.capacity}: must be between 0.1 and 8")
@@ -215,18 +234,17 @@ def build_config(scene, args):
         if args.psf_samples < 1:
             raise SrvolError(f"--psf-samples {args.psf_samples}: must be >= 1")
         changes["psf_samples"] = args.psf_samples
-        batch_in = cfg.batch_in
-        centre = args.psf_sampler == "centre"  # stage 1 on one centre ray per pixel, N times the pixels
-        if args.preset == "auto" and args.sr == "gaussian":  # auto keeps its rays per step
-            batches = auto_batches(args.psf_samples, centre_rays=centre)
-            batch_in = batches.batch_in
-            changes.update(batches._asdict())
-            if cfg.psf_sampler == "centre" and not centre:  # N PSF rays per pixel asked for stage 1 too
-                changes["psf_sampler"] = "antithetic"
-        if args.sr == "gaussian":
-            per_step = (f"{batch_in * args.psf_samples} in-mask pixels per stage-1 step, one centre ray each"
-                        if centre else f"{batch_in} in-mask pixels per step x {args.psf_samples} rays")
-            changes["reasons"] = cfg.reasons + (f"--psf-samples {args.psf_samples} (asked): {per_step}",)
+        if args.preset == "auto" and args.sr == "gaussian" and cfg.psf_sampler == "centre":
+            changes["psf_sampler"] = "antithetic"  # N PSF rays per pixel asked for stage 1 too
+    if args.psf_sampler is not None:
+        changes["psf_sampler"] = args.psf_sampler
+        # the asked sampler serves both stages unless stage 2's is asked too; "centre" serves stage 1 only
+        # (the PSF enters in stage 2: the preset's stage-2 sampler, else mc)
+        changes["stage2_psf_sampler"] = (cfg.stage2_psf_sampler or "mc") if args.psf_sampler == "centre" else ""
+    if args.stage2_psf_sampler is not None:
+        changes["stage2_psf_sampler"] = args.stage2_psf_sampler
+    if args.sr == "gaussian" and (args.psf_samples is not None or args.psf_sampler is not None):
+        changes["reasons"] = cfg.reasons + (stage1_rays_asked(cfg, changes, args),)
     if args.batch_scale is not None:
         if not (math.isfinite(args.batch_scale) and 0.25 <= args.batch_scale <= 64):
             raise SrvolError(f"--batch-scale {args.batch_scale}: must be between 0.25 and 64")
@@ -235,13 +253,6 @@ def build_config(scene, args):
             changes[key] = max(16, round(changes.get(key, getattr(cfg, key)) * args.batch_scale))
         changes["reasons"] = changes.get("reasons", cfg.reasons) + (
             f"--batch-scale {args.batch_scale:g} (asked): {args.batch_scale:g}x the pixels of every batch per step",)
-    if args.psf_sampler is not None:
-        changes["psf_sampler"] = args.psf_sampler
-        # the asked sampler serves both stages unless stage 2's is asked too; "centre" serves stage 1 only
-        # (the PSF enters in stage 2: the preset's stage-2 sampler, else mc)
-        changes["stage2_psf_sampler"] = (cfg.stage2_psf_sampler or "mc") if args.psf_sampler == "centre" else ""
-    if args.stage2_psf_sampler is not None:
-        changes["stage2_psf_sampler"] = args.stage2_psf_sampler
     if args.geometry_lr_tail is not None:
         changes["geometry_lr_tail"] = _in_range(args.geometry_lr_tail, "--geometry-lr-tail", 1.0, least=0.001)
     if args.stage2_geometry_lr is not None:

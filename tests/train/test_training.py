@@ -323,15 +323,24 @@ def test_psf_samples_override_is_stated_in_the_reasons(default_scene):
     assert (cfg.psf_samples, cfg.psf_sampler) == (4, "antithetic")
     derived = auto_config(scene, "gaussian", 60.0)
     assert cfg.batch_in * 4 == derived.batch_in * 2 and cfg.batch_stage2 * 4 == derived.batch_stage2 * 2
-    assert cfg.reasons[-1] == f"--psf-samples 4 (asked): {cfg.batch_in} in-mask pixels per step x 4 rays"
+    assert cfg.batch_out == cfg.batch_in // 2
+    assert cfg.reasons[-1] == (f"--psf-samples 4 (asked): {cfg.batch_in} in-mask pixels per step x 4 rays, "
+                               f"{cfg.batch_out} out-of-mask")
     # with --psf-sampler centre, stage 1 traces 4 x batch_in centre rays, and the mask term draws half as
     # many out-of-mask pixels as that, as auto's own centre rays do
     centre = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "unused", "--psf-samples",
                                                 "4", "--psf-sampler", "centre"]))
     assert (centre.psf_samples, centre.psf_sampler) == (4, "centre")
     assert centre.batch_out == centre.batch_in * 4 // 2 == derived.batch_out
-    assert centre.reasons[-1] == (f"--psf-samples 4 (asked): {centre.batch_in * 4} in-mask pixels per stage-1 "
-                                  "step, one centre ray each")
+    assert centre.reasons[-1] == (f"--psf-samples 4 --psf-sampler centre (asked): {centre.batch_in * 4} in-mask "
+                                  f"pixels per stage-1 step, one centre ray each, {centre.batch_out} out-of-mask")
+    # --psf-sampler mc alone: auto's 2 rays now land on the same pixel, so half as many pixels per step,
+    # and half as many out-of-mask pixels with them (the batches follow the final stage-1 sampler)
+    mc = build_config(scene, ap.parse_args(["train", str(default_scene), "--out", "unused", "--psf-sampler", "mc"]))
+    assert (mc.psf_samples, mc.psf_sampler, mc.batch_in) == (2, "mc", derived.batch_in)
+    assert mc.batch_out == mc.batch_in // 2 == derived.batch_out // 2
+    assert mc.reasons[-1] == f"--psf-sampler mc (asked): {mc.batch_in} in-mask pixels per step x 2 rays, " \
+                             f"{mc.batch_out} out-of-mask"
     wide = replace(scene, info=replace(scene.info, psf_sigma_lr_px=0.75))
     assert auto_config(wide, "gaussian", 60.0).psf_samples == 2
 
