@@ -140,8 +140,10 @@ def run_rules(run: Path) -> str:
     drawn = f", stage 2 error map {cfg.stage2_importance:g}" if cfg.stage2_importance else ""
     moving = f", stage 2 SDF x{cfg.stage2_geometry_lr:g}" if cfg.stage2_geometry_lr else ""
     clip = f", L1 saturated at {cfg.photometric_clip:g}" if cfg.photometric_clip else ""
+    stereo = (f", stereo pull {cfg.lambda_anchor:g}" if cfg.lambda_anchor else "") + (
+        f", stereo free space {cfg.lambda_free_space:g}" if cfg.lambda_free_space else "")
     return (cap + (f", {cfg.sampler.n_refine} refining" if cfg.sampler.n_refine else "") + rays + heads + table + c2f
-            + sdf + s2 + drawn + moving + clip)
+            + sdf + s2 + drawn + moving + clip + stereo)
 
 
 def carried_over(rows: list[dict], name: str, sr: str) -> dict | None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -262,13 +263,24 @@ it of the surface for 90 % of them (tuning scene glossy: median 0.004, p90 0.015
 way they would print their own noise into the surface the photometric loss refines."""
 
 
-def anchor_loss(sdf_at, points: Tensor, eyes: Tensor, n: int, gen: torch.Generator, bound: float = 1.0) -> Tensor:
-    """mean max(|d(p)| - ANCHOR_TOLERANCE, 0) over ``n`` anchors drawn at random, plus mean max(-d(x), 0) over points x on the
-    line of sight from each one's view to it (inside the ``bound`` sphere, up to FREE_SPACE_MARGIN
-    before it): seen from its view, nothing stands in front of it. ``sdf_at``: x -> d(x).
+class AnchorTerms(NamedTuple):
+    """The two terms over a draw of anchors (:func:`anchor_terms`)."""
 
-    The first term alone is met by an SDF that stays negative and only touches zero at the points
-    under a lid; the second opens the lid."""
+    pull: Tensor
+    """mean max(|d(p)| - ANCHOR_TOLERANCE, 0) over the points: the surface held to them."""
+    free_space: Tensor
+    """mean max(-d(x), 0) over points x on their lines of sight: nothing stands in front of them."""
+
+
+def anchor_terms(sdf_at, points: Tensor, eyes: Tensor, n: int, gen: torch.Generator,
+                 bound: float = 1.0) -> AnchorTerms:
+    """Both anchor terms over ``n`` anchors drawn at random: the pull, and the free space along each
+    one's line of sight from its view to it (inside the ``bound`` sphere, up to FREE_SPACE_MARGIN
+    before it). ``sdf_at``: x -> d(x).
+
+    The pull alone is met by an SDF that stays negative and only touches zero at the points under a
+    lid; the free space opens the lid. The free space alone never pulls the surface to a point: a
+    point's own error (beyond the margin) is what it can print into the surface."""
     idx = torch.randint(len(points), (min(n, len(points)),), generator=gen).to(points.device)
     p, e = points[idx], eyes[idx]
     seg = p - e
@@ -281,4 +293,4 @@ def anchor_loss(sdf_at, points: Tensor, eyes: Tensor, n: int, gen: torch.Generat
     u = torch.rand(len(p), FREE_SPACE_SAMPLES, generator=gen).to(p.device)
     x = e[:, None] + (enter + u * (stop - enter))[..., None] * d[:, None]
     free = torch.relu(-sdf_at(x.reshape(-1, 3))).mean()
-    return torch.relu(sdf_at(p).abs() - ANCHOR_TOLERANCE).mean() + free
+    return AnchorTerms(pull=torch.relu(sdf_at(p).abs() - ANCHOR_TOLERANCE).mean(), free_space=free)

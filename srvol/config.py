@@ -88,12 +88,17 @@ class TrainConfig:
     lambda_smooth: float = 0.0  # stage 1: weight of mean |n(x) - n(x + e)|^2 on the surface (losses.py); 0 = off
     batch_smooth: int = 256
     lambda_anchor: float = 0.0
-    """Stage 1: weight of the anchor term over surface points found by stereo between the training
-    views (:mod:`srvol.anchors`): it opens concavities the photometric loss leaves closed; 0 = off
-    (the paper, and auto: suite_tuning.md)."""
+    """Stage 1: weight of the pull term over surface points found by stereo between the training
+    views (:mod:`srvol.anchors`): the SDF held to them (beyond their error); with the free-space term
+    it opens concavities the photometric loss leaves closed; 0 = off (the paper, and auto:
+    suite_tuning.md)."""
+    lambda_free_space: float = 0.0
+    """Stage 1: weight of the free-space term over the same stereo points: the SDF positive on each
+    point's line of sight from its view, up to a margin before it (:func:`srvol.anchors.anchor_terms`);
+    it never pulls the surface to a point. 0 = off (the paper); auto: 1 (suite_tuning.md)."""
     batch_anchor: int = 256
     anchor_fade: float = 0.5
-    """The anchor term's weight falls linearly from ``lambda_anchor`` to 0 over this share of the run:
+    """The anchor terms' weights fall linearly from ``lambda_anchor`` (``lambda_free_space``) to 0 over this share of the run:
     the points are about an LR pixel off; they open the concavities early and the photometric loss
     refines the surface after them."""
     beta_anneal: float = 0.0
@@ -148,6 +153,8 @@ class TrainConfig:
             d["stage2_sampler"] = SamplerConfig(**d["stage2_sampler"])
         d["reasons"] = tuple(d.get("reasons", ()))
         d["capture"] = CaptureTermsConfig.from_json(d["capture"]) if d.get("capture") else None
+        # a run written before the free space had its own weight: lambda_anchor carried both terms
+        d.setdefault("lambda_free_space", d.get("lambda_anchor", 0.0))
         known = TrainConfig.__dataclass_fields__
         return TrainConfig(**{k: v for k, v in d.items() if k in known})
 

@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from srvol.anchors import AnchorPoints, anchor_loss
+from srvol.anchors import AnchorPoints, anchor_terms
 from srvol.capture.terms import CaptureTerms
 from srvol.config import TrainConfig, psf_rays_per_pixel, sampler_of_stage
 from srvol.distributed import SINGLE, Shard
@@ -251,12 +251,12 @@ def faithful_stage2_sampler(cfg: TrainConfig) -> SamplerConfig:
                    n_importance=max(cheap.n_importance, STAGE2_FAITHFUL_IMPORTANCE))
 
 
-def anchor_weight(progress: float, cfg: TrainConfig) -> float:
-    """The anchor term's weight at ``progress`` of the run: ``lambda_anchor`` falling linearly to 0
-    at ``anchor_fade``."""
-    if cfg.lambda_anchor <= 0 or cfg.anchor_fade <= 0:
+def anchor_fade(progress: float, cfg: TrainConfig) -> float:
+    """The factor on the anchor terms (``lambda_anchor``, ``lambda_free_space``) at ``progress`` of
+    the run: 1 falling linearly to 0 at ``anchor_fade``; 0 when both terms are off."""
+    if (cfg.lambda_anchor <= 0 and cfg.lambda_free_space <= 0) or cfg.anchor_fade <= 0:
         return 0.0
-    return cfg.lambda_anchor * max(0.0, 1.0 - progress / cfg.anchor_fade)
+    return max(0.0, 1.0 - progress / cfg.anchor_fade)
 
 
 def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: PsfSampler, stage: int,
@@ -323,12 +323,11 @@ def compute_loss(fields: SceneFields, bank: PixelBank, cfg: TrainConfig, psf: Ps
             if len(pts):
                 smooth = normal_smoothness(fields, pts, fields.finest_sdf_cell() or SMOOTH_SPREAD_MLP, gen)
                 total = total + cfg.lambda_smooth * smooth
-        weight = anchor_weight(progress, cfg)
-        if anchors is not None and weight > 0:
-            # every rank draws the same points (one generator state): its share is 1 / world of the term
-            anchor = anchor_loss(fields.sdf, anchors.points, anchors.eyes, cfg.batch_anchor, gen,
-                                 cfg.sampler.bound) / shard.world
-            total = total + weight * anchor
+        fade = anchor_fade(progress, cfg)
+        if anchors is not None and fade > 0:
+            # every rank draws the same points (one generator state): its share is 1 / world of the terms
+            at = anchor_terms(fields.sdf, anchors.points, anchors.eyes, cfg.batch_anchor, gen, cfg.sampler.bound)
+            total = total + fade * (cfg.lambda_anchor * at.pull + cfg.lambda_free_space * at.free_space) / shard.world
     se, pixels = squared_error(rgb, batch)
     if error_map is not None and whole.centre is not None:  # every rank writes the whole step's errors
         error_map.update(whole.centre, shard.gather_span(group_squared_error(rgb, batch), g_lo, len(whole.centre)))

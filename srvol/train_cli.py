@@ -112,11 +112,16 @@ def add_parser(sub) -> None:
                    help="stage 1: weight of a term that keeps the normal from turning within one SDF grid cell "
                         "(mean |n(x) - n(x + e)|^2 on the rendered surface; 0 = off)")
     p.add_argument("--anchors", type=float, metavar="W",
-                   help="stage 1: weight of a term that holds the SDF to surface points found by stereo between "
-                        "neighbouring training views and keeps their lines of sight free; it opens concavities "
-                        "(a cup's inside, a bowl) that the photometric loss leaves closed, fading out by half the "
-                        "run (default 0 = off; 1 on the tuning scene glossy: normals 1.5 vs 5.2 deg, see "
-                        "bench/results/suite_tuning.md)")
+                   help="stage 1: weight of two terms over surface points found by stereo between neighbouring "
+                        "training views: one holds the SDF to the points, one keeps their lines of sight free; "
+                        "together they open concavities (a cup's inside, a bowl) that the photometric loss leaves "
+                        "closed, fading out by half the run (default 0; 1 on the tuning scene glossy opens its bowl: "
+                        "normals 1.5 vs 5.2 deg, but HR PSNR 0.5-3.5 dB lower, see bench/results/suite_tuning.md). "
+                        "0 also turns off auto's free space, and with it the stereo")
+    p.add_argument("--free-space", type=float, metavar="W",
+                   help="stage 1: weight of the line-of-sight term alone: the SDF kept positive in front of each "
+                        "stereo point, up to 0.05 before it, never pulling the surface to a point (auto: "
+                        "1: +0.21 dB, -0.14 deg on the tuning set's mean; other presets 0)")
     p.add_argument("--sdf-interpolation", choices=SDF_INTERPOLATIONS,
                    help="grid presets: how the SDF grids interpolate (default smoothstep). bspline (quadratic) "
                         "draws flat faces flat but costs 3x per SDF query: in 600 s the tuning scene stool (flat "
@@ -294,7 +299,11 @@ def build_config(scene, args):
     if args.anchors is not None:
         if not (math.isfinite(args.anchors) and 0 <= args.anchors <= 100):
             raise SrvolError(f"--anchors {args.anchors}: must be between 0 and 100")
-        changes["lambda_anchor"] = args.anchors
+        changes["lambda_anchor"] = changes["lambda_free_space"] = args.anchors
+    if args.free_space is not None:
+        if not (math.isfinite(args.free_space) and 0 <= args.free_space <= 100):
+            raise SrvolError(f"--free-space {args.free_space}: must be between 0 and 100")
+        changes["lambda_free_space"] = args.free_space
     if args.sdf_interpolation is not None:
         if cfg.fields.kind != "grid":
             raise SrvolError(f"--sdf-interpolation applies to the grid presets (fast, auto), not {cfg.preset}")

@@ -1,9 +1,16 @@
-"""Surface anchors: stereo points from the training views, and the term that holds the SDF to them."""
+"""Surface anchors: stereo points from the training views, and the terms that hold the SDF to them (the pull)
+and keep their lines of sight free (the free space)."""
 import numpy as np
 import pytest
 import torch
 
-from srvol.anchors import ANCHOR_TOLERANCE, FREE_SPACE_MARGIN, anchor_loss, find_anchors
+from srvol.anchors import ANCHOR_TOLERANCE, FREE_SPACE_MARGIN, anchor_terms, find_anchors
+
+
+def both(sdf_at, points, eyes, n, gen) -> float:
+    """The pull and the free space at equal weights (``--anchors 1``)."""
+    terms = anchor_terms(sdf_at, points, eyes, n, gen)
+    return float(terms.pull + terms.free_space)
 
 
 def solid_ball(x: torch.Tensor) -> torch.Tensor:
@@ -21,8 +28,8 @@ def test_a_point_on_the_bowls_floor_seen_from_above_costs_nothing_once_the_bowl_
     floor = torch.tensor([[0.0, 0.0, 0.2]])
     eye = torch.tensor([[0.0, 0.0, 2.6]])  # the view that saw it, straight above
     gen = torch.Generator().manual_seed(0)
-    open_bowl = float(anchor_loss(ball_with_a_bowl, floor, eye, 16, gen))
-    lid = float(anchor_loss(solid_ball, floor, eye, 16, gen))
+    open_bowl = both(ball_with_a_bowl, floor, eye, 16, gen)
+    lid = both(solid_ball, floor, eye, 16, gen)
     assert open_bowl < 1e-6
     # under the lid the point is 0.3 inside the surface (|d| 0.3, less the tolerance), and its line of
     # sight runs through solid from z 0.5 down to 0.2 + the margin: a third of its samples (from the
@@ -36,11 +43,29 @@ def test_a_point_within_a_stereo_points_error_of_the_surface_costs_nothing():
     eye = torch.tensor([[0.0, 0.0, 2.6]])
     gen = torch.Generator().manual_seed(0)
     just_under = torch.tensor([[0.0, 0.0, 0.5 - ANCHOR_TOLERANCE / 2]])
-    assert float(anchor_loss(solid_ball, just_under, eye, 8, gen)) == 0.0
+    assert both(solid_ball, just_under, eye, 8, gen) == 0.0
     # further under (but within the margin): only the distance beyond the tolerance counts
     under = torch.tensor([[0.0, 0.0, 0.5 - FREE_SPACE_MARGIN / 2]])
     expected = FREE_SPACE_MARGIN / 2 - ANCHOR_TOLERANCE
-    assert float(anchor_loss(solid_ball, under, eye, 8, gen)) == pytest.approx(expected, abs=1e-6)
+    assert both(solid_ball, under, eye, 8, gen) == pytest.approx(expected, abs=1e-6)
+
+
+def test_the_free_space_opens_the_lid_and_never_pulls_the_surface_to_a_point():
+    """auto's term alone: a lid in front of a point the view saw costs; a point a little off the surface,
+    either side (a stereo point's error, up to the margin), costs nothing -- the surface stays where the
+    photos put it."""
+    eye = torch.tensor([[0.0, 0.0, 2.6]])
+    gen = torch.Generator().manual_seed(0)
+    floor = torch.tensor([[0.0, 0.0, 0.2]]).repeat(64, 1)  # 64 draws of the point, 4 samples each
+    eyes = eye.repeat(64, 1)
+    # a third of the line of sight lies in the lid, 0.125 deep on average (the test above)
+    assert float(anchor_terms(solid_ball, floor, eyes, 64, gen).free_space) == pytest.approx(0.25 / 0.75 * 0.125,
+                                                                                            abs=0.015)
+    assert float(anchor_terms(ball_with_a_bowl, floor, eyes, 64, gen).free_space) < 1e-6
+    for off in (-0.9, 0.9):  # in front of the surface or behind it, by 0.9 of the margin
+        point = torch.tensor([[0.0, 0.0, 0.5 + off * FREE_SPACE_MARGIN]])
+        terms = anchor_terms(solid_ball, point, eye, 8, gen)
+        assert float(terms.free_space) == 0.0 and float(terms.pull) > 0.0
 
 
 def test_stereo_points_of_a_textured_scene_lie_on_its_surface(textured_scene):
@@ -81,24 +106,33 @@ def test_a_run_keeps_its_anchors_and_a_resumed_run_reads_them_back(textured_scen
     assert summary.iterations == 4
 
 
-def test_the_anchor_weight_falls_to_zero_and_the_flag_is_checked(default_scene):
+def test_the_anchor_terms_fade_to_zero_and_the_flags_are_checked(default_scene):
     import argparse
     from dataclasses import replace
 
     from srvol.data import load_scene
     from srvol.errors import SrvolError
-    from srvol.losses import anchor_weight
-    from srvol.presets import fast_config
+    from srvol.losses import anchor_fade
+    from srvol.presets import AUTO_FREE_SPACE, fast_config
     from srvol.train_cli import add_parser, build_config
 
-    cfg = replace(fast_config(), lambda_anchor=2.0, anchor_fade=0.5)
-    assert [anchor_weight(p, cfg) for p in (0.0, 0.25, 0.5, 0.9)] == [2.0, 1.0, 0.0, 0.0]
-    assert anchor_weight(0.0, fast_config()) == 0.0  # off in the presets that do not ask for it
+    cfg = replace(fast_config(), lambda_free_space=2.0, anchor_fade=0.5)
+    assert [anchor_fade(p, cfg) for p in (0.0, 0.25, 0.5, 0.9)] == [1.0, 0.5, 0.0, 0.0]
+    assert anchor_fade(0.0, fast_config()) == 0.0  # off in the presets that do not ask for it
     ap = argparse.ArgumentParser()
     add_parser(ap.add_subparsers())
     scene = load_scene(default_scene)
     args = ["train", str(default_scene), "--out", "u", "--preset", "fast"]
-    assert build_config(scene, ap.parse_args([*args, "--anchors", "0.5"])).lambda_anchor == 0.5
+    asked = build_config(scene, ap.parse_args([*args, "--anchors", "0.5"]))
+    assert (asked.lambda_anchor, asked.lambda_free_space) == (0.5, 0.5)  # both terms
+    asked = build_config(scene, ap.parse_args([*args, "--anchors", "0.5", "--free-space", "2"]))
+    assert (asked.lambda_anchor, asked.lambda_free_space) == (0.5, 2.0)
+    auto = ["train", str(default_scene), "--out", "u"]
+    assert build_config(scene, ap.parse_args(auto)).lambda_free_space == AUTO_FREE_SPACE > 0
+    off = build_config(scene, ap.parse_args([*auto, "--anchors", "0"]))
+    assert (off.lambda_anchor, off.lambda_free_space) == (0.0, 0.0)  # no stereo at all
     for bad in ("-1", "nan", "1000"):
         with pytest.raises(SrvolError, match="--anchors"):
             build_config(scene, ap.parse_args([*args, "--anchors", bad]))
+        with pytest.raises(SrvolError, match="--free-space"):
+            build_config(scene, ap.parse_args([*args, "--free-space", bad]))
