@@ -323,7 +323,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     reasons.append(f"free space in front of stereo points (weight {AUTO_FREE_SPACE:g}, fading out by half the run; "
                    "the stereo's seconds count in the budget): the SDF kept positive on each point's line of sight "
                    "from its view, never pulled to a point. Tuning set, 600 s, against auto without it on the same "
-                   "machine: +0.21 dB HR PSNR on the mean (airplane +1.22, glossy +0.52, stool +0.36, dark +0.11, bumpy -0.10, torus -0.14, shiny -0.48 over two runs), normals -0.14 deg (glossy -0.97: its lid sinks; torus +0.37); stereo took 29-70 s. The pull to the points as well (--anchors 1) opens glossy's bowl "
+                   "machine: +0.21 dB HR PSNR on the mean (airplane +1.22, glossy +0.52, stool +0.36, dark +0.11, bumpy -0.10, torus -0.14, shiny -0.48 over two runs), normals -0.14 deg (glossy -0.97: the lid over its bowl sits lower and smoother; torus +0.37); stereo took 29-70 s. The pull to the points as well (--anchors 1) opens glossy's bowl "
                    "(normals 1.5-2.1 deg) but costs its HR PSNR 0.5-3.5 dB (suite_tuning.md)")
     spacing_px = 2 * stage1.bound / stage1.n_coarse / (hr * scene.info.sr_factor)
     masks = [v.mask for v in scene.train_views() if v.mask is not None]
