@@ -95,7 +95,7 @@ class TrainConfig:
     lambda_free_space: float = 0.0
     """Stage 1: weight of the free-space term over the same stereo points: the SDF positive on each
     point's line of sight from its view, up to a margin before it (:func:`srvol.anchors.anchor_terms`);
-    it never pulls the surface to a point. 0 = off (the paper); auto: 1 (suite_tuning.md)."""
+    it never pulls the surface to a point. 0 = off (the paper, and auto: suite_tuning.md)."""
     batch_anchor: int = 256
     anchor_fade: float = 0.5
     """The anchor terms' weights fall linearly from ``lambda_anchor`` (``lambda_free_space``) to 0 over this share of the run:

@@ -39,9 +39,6 @@ differ from a 128 + 68-sample render by 0.001 on average (the stage-1 sampler's:
 stage-2 step takes 2.1x less time (bench/results/stage2_table.md)."""
 
 
-AUTO_FREE_SPACE = 1.0
-"""auto's weight of the free-space term over stereo points (``TrainConfig.lambda_free_space``)."""
-
 AUTO_CAPTURE_TERMS = CaptureTermsConfig(exposure=True, vignetting=True, ambient=False, pose=False)
 
 AUTO_STAGE2_FRACTION = 0.3
@@ -319,12 +316,11 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                    "meets them now and then -- the logged 25-step PSNR swung by 14.5 dB on glossy, 2.4 with the map; "
                    "HR PSNR within a run's spread on the tuning set (glossy 34.52 vs 34.17 dB, stool 44.05 vs 44.14, "
                    "bumpy 39.01 vs 39.05; suite_tuning.md)")
-    cfg = replace(cfg, lambda_free_space=AUTO_FREE_SPACE)
-    reasons.append(f"free space in front of stereo points (weight {AUTO_FREE_SPACE:g}, fading out by half the run; "
-                   "the stereo's seconds count in the budget): the SDF kept positive on each point's line of sight "
-                   "from its view, never pulled to a point. Tuning set, 600 s, against auto without it on the same "
-                   "machine: +0.21 dB HR PSNR on the mean (airplane +1.22, glossy +0.52, stool +0.36, dark +0.11, bumpy -0.10, torus -0.14, shiny -0.48 over two runs), normals -0.14 deg (glossy -0.97: the lid over its bowl sits lower and smoother; torus +0.37); stereo took 29-70 s. The pull to the points as well (--anchors 1) opens glossy's bowl "
-                   "(normals 1.5-2.1 deg) but costs its HR PSNR 0.5-3.5 dB (suite_tuning.md)")
+    reasons.append("no stereo points (--free-space 1 keeps their lines of sight free, --anchors 1 pulls the surface to "
+                   "them as well): the free space alone gained +0.21 dB, -0.14 deg on the tuning set's mean (airplane "
+                   "+1.22, glossy +0.52; shiny -0.48, torus -0.14), inside the runs' spread, and the stereo and the "
+                   "term cost 30-110 s and up to a fifth of a step; the pull opens glossy's bowl (normals 1.5-2.1 deg) "
+                   "but costs its HR PSNR 0.5-3.5 dB (suite_tuning.md)")
     spacing_px = 2 * stage1.bound / stage1.n_coarse / (hr * scene.info.sr_factor)
     masks = [v.mask for v in scene.train_views() if v.mask is not None]
     thin = thin_share(masks, spacing_px)

@@ -116,12 +116,12 @@ def add_parser(sub) -> None:
                         "training views: one holds the SDF to the points, one keeps their lines of sight free; "
                         "together they open concavities (a cup's inside, a bowl) that the photometric loss leaves "
                         "closed, fading out by half the run (default 0; 1 on the tuning scene glossy opens its bowl: "
-                        "normals 1.5 vs 5.2 deg, but HR PSNR 0.5-3.5 dB lower, see bench/results/suite_tuning.md). "
-                        "0 also turns off auto's free space, and with it the stereo")
+                        "normals 1.5 vs 5.2 deg, but HR PSNR 0.5-3.5 dB lower, see bench/results/suite_tuning.md)")
     p.add_argument("--free-space", type=float, metavar="W",
                    help="stage 1: weight of the line-of-sight term alone: the SDF kept positive in front of each "
-                        "stereo point, up to 0.05 before it, never pulling the surface to a point (auto: "
-                        "1: +0.21 dB, -0.14 deg on the tuning set's mean; other presets 0)")
+                        "stereo point, up to 0.05 before it, never pulling the surface to a point (default 0; 1 "
+                        "lowers the lid over a bowl: tuning scene glossy +0.52 dB, normals -0.97 deg, see "
+                        "bench/results/suite_tuning.md)")
     p.add_argument("--sdf-interpolation", choices=SDF_INTERPOLATIONS,
                    help="grid presets: how the SDF grids interpolate (default smoothstep). bspline (quadratic) "
                         "draws flat faces flat but costs 3x per SDF query: in 600 s the tuning scene stool (flat "

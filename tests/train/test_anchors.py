@@ -113,7 +113,7 @@ def test_the_anchor_terms_fade_to_zero_and_the_flags_are_checked(default_scene):
     from srvol.data import load_scene
     from srvol.errors import SrvolError
     from srvol.losses import anchor_fade
-    from srvol.presets import AUTO_FREE_SPACE, fast_config
+    from srvol.presets import fast_config
     from srvol.train_cli import add_parser, build_config
 
     cfg = replace(fast_config(), lambda_free_space=2.0, anchor_fade=0.5)
@@ -128,9 +128,8 @@ def test_the_anchor_terms_fade_to_zero_and_the_flags_are_checked(default_scene):
     asked = build_config(scene, ap.parse_args([*args, "--anchors", "0.5", "--free-space", "2"]))
     assert (asked.lambda_anchor, asked.lambda_free_space) == (0.5, 2.0)
     auto = ["train", str(default_scene), "--out", "u"]
-    assert build_config(scene, ap.parse_args(auto)).lambda_free_space == AUTO_FREE_SPACE > 0
-    off = build_config(scene, ap.parse_args([*auto, "--anchors", "0"]))
-    assert (off.lambda_anchor, off.lambda_free_space) == (0.0, 0.0)  # no stereo at all
+    assert (build_config(scene, ap.parse_args(auto)).lambda_free_space, build_config(
+        scene, ap.parse_args([*auto, "--free-space", "1"])).lambda_free_space) == (0.0, 1.0)  # auto: off, asked: on
     for bad in ("-1", "nan", "1000"):
         with pytest.raises(SrvolError, match="--anchors"):
             build_config(scene, ap.parse_args([*args, "--anchors", bad]))
