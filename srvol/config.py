@@ -98,9 +98,9 @@ class TrainConfig:
     it never pulls the surface to a point. 0 = off (the paper, and auto: suite_tuning.md)."""
     batch_anchor: int = 256
     anchor_fade: float = 0.5
-    """The anchor terms' weights fall linearly from ``lambda_anchor`` (``lambda_free_space``) to 0 over this share of the run:
-    the points are about an LR pixel off; they open the concavities early and the photometric loss
-    refines the surface after them."""
+    """The anchor terms' weights fall linearly from ``lambda_anchor`` and ``lambda_free_space`` to 0
+    over this share of the run: the points are about an LR pixel off; they open the concavities early
+    and the photometric loss refines the surface after them."""
     beta_anneal: float = 0.0
     """Stage 1: VolSDF's beta is bounded above by a cap that falls geometrically from its start (0.1)
     to ``beta_cap_end`` over this share of the run (time or iterations), then stays there; 0 = no cap

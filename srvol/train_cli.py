@@ -195,27 +195,19 @@ def _capture_terms(scene, args, default):
     return terms_config(names, offset)
 
 
-def stage1_rays_asked(cfg, changes: dict, args) -> str:
-    """The reason line for an asked --psf-samples / --psf-sampler on a Gaussian PSF. auto keeps its rays
-    per step: its batches (``changes`` updated in place) follow the run's final stage-1 sampler -- N
-    centre rays per pixel's worth of pixels, or N PSF rays on each of fewer pixels -- and the out-of-mask
-    pixels are half the step's in-mask pixels either way."""
-    from srvol.presets import auto_batches
-
-    ns = changes.get("psf_samples", cfg.psf_samples)
-    centre = changes.get("psf_sampler", cfg.psf_sampler) == "centre"  # one centre ray per pixel, ns x the pixels
-    if args.preset == "auto":
-        changes.update(auto_batches(ns, centre_rays=centre)._asdict())
-    batch_in = changes.get("batch_in", cfg.batch_in)
+def stage1_rays_reason(args, ns: int, centre: bool, batch_in: int, batch_out: int) -> str:
+    """The reason line for an asked --psf-samples / --psf-sampler on a Gaussian PSF: ``ns`` rays per
+    pixel's worth of stage-1 rays, as ``ns`` x ``batch_in`` centre rays (``centre``) or ``ns`` PSF rays
+    on each of ``batch_in`` pixels, and the out-of-mask pixels."""
     asked = " ".join(f"{flag} {value}" for flag, value in (("--psf-samples", args.psf_samples),
                                                              ("--psf-sampler", args.psf_sampler)) if value is not None)
     per_step = (f"{batch_in * ns} in-mask pixels per stage-1 step, one centre ray each" if centre
                 else f"{batch_in} in-mask pixels per step x {ns} rays")
-    return f"{asked} (asked): {per_step}, {changes.get('batch_out', cfg.batch_out)} out-of-mask"
+    return f"{asked} (asked): {per_step}, {batch_out} out-of-mask"
 
 
 def build_config(scene, args):
-    from srvol.presets import auto_config, fast_config, paper_config
+    from srvol.presets import auto_batches, auto_config, fast_config, paper_config
 
     if not (math.isfinite(args.capacity) and 0.1 <= args.capacity <= 8):
         raise SrvolError(f"--capacity {args.capacity}: must be between 0.1 and 8")
@@ -249,7 +241,12 @@ def build_config(scene, args):
     if args.stage2_psf_sampler is not None:
         changes["stage2_psf_sampler"] = args.stage2_psf_sampler
     if args.sr == "gaussian" and (args.psf_samples is not None or args.psf_sampler is not None):
-        changes["reasons"] = cfg.reasons + (stage1_rays_asked(cfg, changes, args),)
+        ns = changes.get("psf_samples", cfg.psf_samples)
+        centre = changes.get("psf_sampler", cfg.psf_sampler) == "centre"  # one centre ray per pixel, ns x the pixels
+        if args.preset == "auto":  # auto keeps its rays per step: its batches follow the final stage-1 sampler
+            changes.update(auto_batches(ns, centre_rays=centre)._asdict())
+        changes["reasons"] = cfg.reasons + (stage1_rays_reason(args, ns, centre, changes.get("batch_in", cfg.batch_in),
+                                                               changes.get("batch_out", cfg.batch_out)),)
     if args.batch_scale is not None:
         if not (math.isfinite(args.batch_scale) and 0.25 <= args.batch_scale <= 64):
             raise SrvolError(f"--batch-scale {args.batch_scale}: must be between 0.25 and 64")
