@@ -190,6 +190,15 @@ def auto_batches(psf_samples: int, centre_rays: bool = False) -> AutoBatches:
     return AutoBatches(batch_in, max(64, pixels // 2), int(max(64, TrainConfig.batch_stage2 // ns)))
 
 
+def stage1_rays_reason(asked: str, ns: int, centre: bool, batch_in: int, batch_out: int) -> str:
+    """The reason line for ``asked`` stage-1 rays (--psf-samples / --psf-sampler on a Gaussian PSF): ``ns``
+    rays per pixel's worth, as ``ns`` x ``batch_in`` centre rays (``centre``) or ``ns`` PSF rays on each
+    of ``batch_in`` pixels, and the out-of-mask pixels."""
+    per_step = (f"{batch_in * ns} in-mask pixels per stage-1 step, one centre ray each" if centre
+                else f"{batch_in} in-mask pixels per step x {ns} rays")
+    return f"{asked} (asked): {per_step}, {batch_out} out-of-mask"
+
+
 def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0) -> TrainConfig:
     """Capacity derived from the scene: resolution from the HR pixel footprint, the stage-2
     lattice spacing from the PSF width, the beta cap from the footprint, thin-parts sampling from

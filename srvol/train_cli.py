@@ -195,19 +195,8 @@ def _capture_terms(scene, args, default):
     return terms_config(names, offset)
 
 
-def stage1_rays_reason(args, ns: int, centre: bool, batch_in: int, batch_out: int) -> str:
-    """The reason line for an asked --psf-samples / --psf-sampler on a Gaussian PSF: ``ns`` rays per
-    pixel's worth of stage-1 rays, as ``ns`` x ``batch_in`` centre rays (``centre``) or ``ns`` PSF rays
-    on each of ``batch_in`` pixels, and the out-of-mask pixels."""
-    asked = " ".join(f"{flag} {value}" for flag, value in (("--psf-samples", args.psf_samples),
-                                                             ("--psf-sampler", args.psf_sampler)) if value is not None)
-    per_step = (f"{batch_in * ns} in-mask pixels per stage-1 step, one centre ray each" if centre
-                else f"{batch_in} in-mask pixels per step x {ns} rays")
-    return f"{asked} (asked): {per_step}, {batch_out} out-of-mask"
-
-
 def build_config(scene, args):
-    from srvol.presets import auto_batches, auto_config, fast_config, paper_config
+    from srvol.presets import auto_batches, auto_config, fast_config, paper_config, stage1_rays_reason
 
     if not (math.isfinite(args.capacity) and 0.1 <= args.capacity <= 8):
         raise SrvolError(f"--capacity {args.capacity}: must be between 0.1 and 8")
@@ -245,7 +234,9 @@ def build_config(scene, args):
         centre = changes.get("psf_sampler", cfg.psf_sampler) == "centre"  # one centre ray per pixel, ns x the pixels
         if args.preset == "auto":  # auto keeps its rays per step: its batches follow the final stage-1 sampler
             changes.update(auto_batches(ns, centre_rays=centre)._asdict())
-        changes["reasons"] = cfg.reasons + (stage1_rays_reason(args, ns, centre, changes.get("batch_in", cfg.batch_in),
+        asked = " ".join(f"--psf-{k} {v}" for k, v in (("samples", args.psf_samples), ("sampler", args.psf_sampler))
+                         if v is not None)
+        changes["reasons"] = cfg.reasons + (stage1_rays_reason(asked, ns, centre, changes.get("batch_in", cfg.batch_in),
                                                                changes.get("batch_out", cfg.batch_out)),)
     if args.batch_scale is not None:
         if not (math.isfinite(args.batch_scale) and 0.25 <= args.batch_scale <= 64):
@@ -294,13 +285,9 @@ def build_config(scene, args):
             raise SrvolError(f"--normal-smoothness {args.normal_smoothness}: must be between 0 and 10")
         changes["lambda_smooth"] = args.normal_smoothness
     if args.anchors is not None:
-        if not (math.isfinite(args.anchors) and 0 <= args.anchors <= 100):
-            raise SrvolError(f"--anchors {args.anchors}: must be between 0 and 100")
-        changes["lambda_anchor"] = changes["lambda_free_space"] = args.anchors
+        changes["lambda_anchor"] = changes["lambda_free_space"] = _in_range(args.anchors, "--anchors", 100)
     if args.free_space is not None:
-        if not (math.isfinite(args.free_space) and 0 <= args.free_space <= 100):
-            raise SrvolError(f"--free-space {args.free_space}: must be between 0 and 100")
-        changes["lambda_free_space"] = args.free_space
+        changes["lambda_free_space"] = _in_range(args.free_space, "--free-space", 100)
     if args.sdf_interpolation is not None:
         if cfg.fields.kind != "grid":
             raise SrvolError(f"--sdf-interpolation applies to the grid presets (fast, auto), not {cfg.preset}")
