@@ -328,8 +328,9 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
     reasons.append("no stereo points (--free-space 1 keeps their lines of sight free, --anchors 1 pulls the surface to "
                    "them as well): the free space alone gained +0.21 dB, -0.14 deg on the tuning set's mean (airplane "
                    "+1.22, glossy +0.52; shiny -0.48, torus -0.14), inside the runs' spread, and the stereo and the "
-                   "term cost 30-110 s and up to a fifth of a step; the pull opens glossy's bowl (normals 1.5-2.1 deg) "
-                   "but costs its HR PSNR 0.5-3.5 dB (suite_tuning.md)")
+                   "term cost 30-110 s and up to a fifth of a step: every report scene lost with it (rings -3.57 dB at "
+                   "half its steps); the pull opens glossy's bowl (normals 1.5-2.1 deg) but costs its HR PSNR 0.5-3.5 "
+                   "dB (suite_tuning.md)")
     spacing_px = 2 * stage1.bound / stage1.n_coarse / (hr * scene.info.sr_factor)
     masks = [v.mask for v in scene.train_views() if v.mask is not None]
     thin = thin_share(masks, spacing_px)
