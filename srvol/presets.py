@@ -190,13 +190,17 @@ def auto_batches(psf_samples: int, centre_rays: bool = False) -> AutoBatches:
     return AutoBatches(batch_in, max(64, pixels // 2), int(max(64, TrainConfig.batch_stage2 // ns)))
 
 
+def stage1_rays_in_words(ns: int, centre: bool, batch_in: int) -> str:
+    """A stage-1 step's in-mask rays: ``ns`` rays per pixel's worth, as ``ns`` x ``batch_in`` centre rays
+    (``centre``) or ``ns`` PSF rays on each of ``batch_in`` pixels."""
+    return (f"{batch_in * ns} in-mask pixels per stage-1 step, one centre ray each" if centre
+            else f"{batch_in} in-mask pixels per step x {ns} rays")
+
+
 def stage1_rays_reason(asked: str, ns: int, centre: bool, batch_in: int, batch_out: int) -> str:
-    """The reason line for ``asked`` stage-1 rays (--psf-samples / --psf-sampler on a Gaussian PSF): ``ns``
-    rays per pixel's worth, as ``ns`` x ``batch_in`` centre rays (``centre``) or ``ns`` PSF rays on each
-    of ``batch_in`` pixels, and the out-of-mask pixels."""
-    per_step = (f"{batch_in * ns} in-mask pixels per stage-1 step, one centre ray each" if centre
-                else f"{batch_in} in-mask pixels per step x {ns} rays")
-    return f"{asked} (asked): {per_step}, {batch_out} out-of-mask"
+    """The reason line for ``asked`` stage-1 rays (--psf-samples / --psf-sampler on a Gaussian PSF) and
+    the out-of-mask pixels."""
+    return f"{asked} (asked): {stage1_rays_in_words(ns, centre, batch_in)}, {batch_out} out-of-mask"
 
 
 def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0) -> TrainConfig:
@@ -283,8 +287,7 @@ def auto_config(scene: Scene, sr: str, time_budget: float, capacity: float = 1.0
                       stage2_psf_sampler="lattice" if mode == SRMode.GAUSSIAN else "", patch=4, lattice_cell=cell,
                       **batches._asdict(),
                       time_budget=time_budget)
-    per_step = (f"{rays_per_step(cfg, 1)} per stage-1 step, one centre ray each" if cfg.psf_sampler == "centre"
-                else f"{batches.batch_in} per step x {ns} rays")
+    per_step = stage1_rays_in_words(ns, cfg.psf_sampler == "centre", batches.batch_in)
     reasons.append(f"{n_in} in-mask training pixels; {per_step} (stage 2: {rays_per_step(cfg, 2)} rays per step); "
                    f"{cfg.batch_out} out-of-mask pixels per stage-1 step, half its in-mask pixels, as noSR "
                    "(tuning set, 600 s, against half as many: airplane 43.84 vs 43.12 dB over three runs each, shiny "

@@ -51,7 +51,7 @@ def test_a_point_within_a_stereo_points_error_of_the_surface_costs_nothing():
 
 
 def test_the_free_space_opens_the_lid_and_never_pulls_the_surface_to_a_point():
-    """auto's term alone: a lid in front of a point the view saw costs; a point a little off the surface,
+    """The free space alone (--free-space): a lid in front of a point the view saw costs; a point a little off the surface,
     either side (a stereo point's error, up to the margin), costs nothing -- the surface stays where the
     photos put it."""
     eye = torch.tensor([[0.0, 0.0, 2.6]])
