@@ -135,6 +135,10 @@ class TrainConfig:
         """Whether the SDF learns in ``stage``: always in stage 1, in stage 2 with stage2_geometry_lr."""
         return stage == 1 or self.stage2_geometry_lr > 0
 
+    def uses_stereo(self) -> bool:
+        """Whether either stereo term (the pull, the free space: :mod:`srvol.anchors`) is on."""
+        return self.lambda_anchor > 0 or self.lambda_free_space > 0
+
     def to_json(self) -> dict:
         d = asdict(self)
         d["fields"] = self.fields.to_json()

@@ -254,7 +254,7 @@ def faithful_stage2_sampler(cfg: TrainConfig) -> SamplerConfig:
 def anchor_fade(progress: float, cfg: TrainConfig) -> float:
     """The factor on the anchor terms (``lambda_anchor``, ``lambda_free_space``) at ``progress`` of
     the run: 1 falling linearly to 0 at ``anchor_fade``; 0 when both terms are off."""
-    if (cfg.lambda_anchor <= 0 and cfg.lambda_free_space <= 0) or cfg.anchor_fade <= 0:
+    if not cfg.uses_stereo() or cfg.anchor_fade <= 0:
         return 0.0
     return max(0.0, 1.0 - progress / cfg.anchor_fade)
 

@@ -192,7 +192,7 @@ def surface_anchors(scene: Scene, cfg: TrainConfig, stage: int, run_dir: Path, d
     """The anchors of ``cfg.lambda_anchor`` and ``cfg.lambda_free_space`` (:mod:`srvol.anchors`) on
     ``device``: None when both terms are off or stage 1 is over. Found by stereo on the training views
     once per run (every rank finds the same points: no randomness) and kept in the run folder."""
-    if (cfg.lambda_anchor <= 0 and cfg.lambda_free_space <= 0) or stage != 1:
+    if not cfg.uses_stereo() or stage != 1:
         return None
     path = run_dir / ANCHORS_NAME
     if path.is_file():

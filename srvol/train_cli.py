@@ -198,8 +198,7 @@ def _capture_terms(scene, args, default):
 def build_config(scene, args):
     from srvol.presets import auto_batches, auto_config, fast_config, paper_config, stage1_rays_reason
 
-    if not (math.isfinite(args.capacity) and 0.1 <= args.capacity <= 8):
-        raise SrvolError(f"--capacity {args.capacity}: must be between 0.1 and 8")
+    _in_range(args.capacity, "--capacity", 8, least=0.1)
     if args.capacity != 1.0 and args.preset != "auto":
         raise SrvolError("--capacity applies to --preset auto only")
     if args.preset == "paper":
@@ -239,8 +238,7 @@ def build_config(scene, args):
         changes["reasons"] = cfg.reasons + (stage1_rays_reason(asked, ns, centre, changes.get("batch_in", cfg.batch_in),
                                                                changes.get("batch_out", cfg.batch_out)),)
     if args.batch_scale is not None:
-        if not (math.isfinite(args.batch_scale) and 0.25 <= args.batch_scale <= 64):
-            raise SrvolError(f"--batch-scale {args.batch_scale}: must be between 0.25 and 64")
+        _in_range(args.batch_scale, "--batch-scale", 64, least=0.25)
         for key in ("batch_in", "batch_out", "batch_eikonal", "batch_stage2", "batch_smooth",
                     "batch_anchor"):
             changes[key] = max(16, round(changes.get(key, getattr(cfg, key)) * args.batch_scale))
@@ -281,9 +279,7 @@ def build_config(scene, args):
         if cfg.stage2_sampler is not None:
             changes["stage2_sampler"] = replace(cfg.stage2_sampler, n_refine=args.refine_samples)
     if args.normal_smoothness is not None:
-        if not (math.isfinite(args.normal_smoothness) and 0 <= args.normal_smoothness <= 10):
-            raise SrvolError(f"--normal-smoothness {args.normal_smoothness}: must be between 0 and 10")
-        changes["lambda_smooth"] = args.normal_smoothness
+        changes["lambda_smooth"] = _in_range(args.normal_smoothness, "--normal-smoothness", 10)
     if args.anchors is not None:
         changes["lambda_anchor"] = changes["lambda_free_space"] = _in_range(args.anchors, "--anchors", 100)
     if args.free_space is not None:
